@@ -1,0 +1,29 @@
+# Every external dependency of hscloc, found once, as imported targets (Debian 12 packages;
+# scripts/install-deps.sh installs them).
+
+find_package(Threads REQUIRED)
+find_package(Eigen3 3.3 REQUIRED NO_MODULE)
+find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc calib3d features2d imgcodecs dnn)
+find_package(Ceres REQUIRED)
+# FAISS's config expects OpenMP to be found first.
+find_package(OpenMP REQUIRED)
+find_package(faiss REQUIRED)
+find_package(Torch REQUIRED)
+find_package(cppzmq REQUIRED)
+find_package(Protobuf REQUIRED)
+find_package(HDF5 REQUIRED COMPONENTS C CXX)
+find_package(SQLite3 REQUIRED)
+find_package(CLI11 REQUIRED)
+find_package(fmt REQUIRED)
+find_package(spdlog REQUIRED)
+find_package(nlohmann_json 3 REQUIRED)
+find_package(GTest REQUIRED)
+find_package(benchmark REQUIRED)
+find_program(COLMAP_EXECUTABLE colmap DOC "The COLMAP binary; tests cross-check our models with it")
+
+# libtorch's config gives a variable list; keep its flags on the one target that needs them.
+if(NOT TARGET hscloc::torch)
+  add_library(hscloc::torch INTERFACE IMPORTED)
+  target_link_libraries(hscloc::torch INTERFACE ${TORCH_LIBRARIES})
+  target_include_directories(hscloc::torch INTERFACE ${TORCH_INCLUDE_DIRS})
+endif()

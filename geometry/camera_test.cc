@@ -1,0 +1,2 @@
+#include "geometry/camera.h"
+#include <gtest/gtest.h>

@@ -1,0 +1,1 @@
+#include "geometry/rigid3d.h"

@@ -1,0 +1,2 @@
+#include "geometry/rigid3d.h"
+#include <gtest/gtest.h>

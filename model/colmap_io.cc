@@ -1,0 +1,1 @@
+#include "model/colmap_io.h"

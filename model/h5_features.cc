@@ -1,0 +1,1 @@
+#include "model/feature_io.h"

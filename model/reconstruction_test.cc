@@ -1,0 +1,2 @@
+#include "model/reconstruction.h"
+#include <gtest/gtest.h>

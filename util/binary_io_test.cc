@@ -1,0 +1,2 @@
+#include "util/binary_io.h"
+#include <gtest/gtest.h>

@@ -1,0 +1,2 @@
+#include "util/check.h"
+#include <gtest/gtest.h>

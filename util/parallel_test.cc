@@ -1,0 +1,2 @@
+#include "util/parallel.h"
+#include <gtest/gtest.h>

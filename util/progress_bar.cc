@@ -1,0 +1,100 @@
+#include "util/progress_bar.h"
+
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstdio>
+
+namespace hscloc {
+namespace {
+
+constexpr double kRedrawIntervalS = 0.1;
+constexpr int kBarWidth = 24;
+
+bool ShouldDraw(ProgressBar::Display display) {
+  switch (display) {
+    case ProgressBar::Display::kAlways:
+      return true;
+    case ProgressBar::Display::kNever:
+      return false;
+    case ProgressBar::Display::kAuto:
+      break;
+  }
+  return isatty(fileno(stderr)) == 1;
+}
+
+std::string FormatCount(double value) {
+  if (value >= 1e9) return fmt::format("{:.2f}G", value / 1e9);
+  if (value >= 1e6) return fmt::format("{:.2f}M", value / 1e6);
+  if (value >= 1e4) return fmt::format("{:.1f}k", value / 1e3);
+  return fmt::format("{:.0f}", value);
+}
+
+}  // namespace
+
+ProgressBar::ProgressBar(std::string label, uint64_t total, Display display)
+    : label_(std::move(label)), total_(total), draw_(ShouldDraw(display)) {}
+
+ProgressBar::~ProgressBar() { Finish(); }
+
+void ProgressBar::Advance(uint64_t units) {
+  done_.fetch_add(units, std::memory_order_relaxed);
+  if (!draw_) return;
+  const double now_s = timer_.ElapsedSeconds();
+  double next_s = next_draw_s_.load(std::memory_order_relaxed);
+  // One thread wins the redraw slot; the others return at once instead of queueing on the lock.
+  if (now_s >= next_s &&
+      next_draw_s_.compare_exchange_strong(next_s, now_s + kRedrawIntervalS)) {
+    Draw(false);
+  }
+}
+
+void ProgressBar::SetStatus(std::string status) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  status_ = std::move(status);
+}
+
+void ProgressBar::Finish() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (finished_) return;
+  }
+  if (draw_) Draw(true);
+  std::lock_guard<std::mutex> lock(mutex_);
+  finished_ = true;
+}
+
+std::string ProgressBar::Render() const {
+  const uint64_t done = done_.load(std::memory_order_relaxed);
+  const double elapsed_s = timer_.ElapsedSeconds();
+  const double rate = elapsed_s > 0 ? done / elapsed_s : 0.0;
+  std::string line = label_;
+  if (total_ > 0) {
+    const double fraction = std::min(1.0, static_cast<double>(done) / total_);
+    const int filled = static_cast<int>(fraction * kBarWidth);
+    line += fmt::format(" [{}{}] {:3.0f}% {}/{}", std::string(filled, '#'),
+                        std::string(kBarWidth - filled, '.'), 100 * fraction, FormatCount(done),
+                        FormatCount(total_));
+  } else {
+    line += fmt::format(" {}", FormatCount(done));
+  }
+  line += fmt::format(" {}/s {}", FormatCount(rate), FormatDuration(elapsed_s));
+  if (total_ > 0 && done > 0 && done < total_) {
+    line += fmt::format(" ETA {}", FormatDuration((total_ - done) / rate));
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!status_.empty()) line += " " + status_;
+  return line;
+}
+
+void ProgressBar::Draw(bool final) {
+  const std::string line = Render();
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (finished_) return;
+  // \033[K clears what a longer previous line left behind.
+  std::fprintf(stderr, "\r%s\033[K%s", line.c_str(), final ? "\n" : "");
+  std::fflush(stderr);
+}
+
+}  // namespace hscloc

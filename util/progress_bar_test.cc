@@ -1,0 +1,2 @@
+#include "util/progress_bar.h"
+#include <gtest/gtest.h>

@@ -1,0 +1,49 @@
+#include "util/testing.h"
+
+#include <unistd.h>
+
+#include <cstdlib>
+#include <random>
+#include <stdexcept>
+
+namespace hscloc::testing {
+
+TempDir::TempDir() {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  std::string name = info ? std::string(info->test_suite_name()) + "." + info->name() : "test";
+  for (char& c : name) {
+    if (c == '/') c = '_';
+  }
+  std::random_device random;
+  path_ = std::filesystem::temp_directory_path() /
+          ("hscloc_" + name + "_" + std::to_string(getpid()) + "_" + std::to_string(random()));
+  std::filesystem::create_directories(path_);
+}
+
+TempDir::~TempDir() {
+  std::error_code ignored;
+  std::filesystem::remove_all(path_, ignored);
+}
+
+std::optional<std::filesystem::path> RealDataDir(const std::string& subdirectory) {
+  const char* root = std::getenv("HSCLOC_DATA_DIR");
+  if (root == nullptr) return std::nullopt;
+  const std::filesystem::path path = std::filesystem::path(root) / subdirectory;
+  if (!std::filesystem::is_directory(path)) return std::nullopt;
+  return path;
+}
+
+std::optional<std::string> ColmapExecutable() {
+  const char* path = std::getenv("HSCLOC_COLMAP");
+  if (path == nullptr || *path == '\0' || access(path, X_OK) != 0) return std::nullopt;
+  return std::string(path);
+}
+
+int RunCommand(const std::string& command, const std::string& log_path) {
+  const std::string full = log_path.empty() ? command : command + " > '" + log_path + "' 2>&1";
+  const int status = std::system(full.c_str());
+  if (status == -1) throw std::runtime_error("could not run: " + command);
+  return WIFEXITED(status) ? WEXITSTATUS(status) : 128;
+}
+
+}  // namespace hscloc::testing

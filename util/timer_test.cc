@@ -1,0 +1,2 @@
+#include "util/timer.h"
+#include <gtest/gtest.h>
