@@ -1,1 +1,71 @@
-int main() { return 0; }
+// hscloc: the map builder's and operator's command line. It only parses options and wires the
+// libraries together; every algorithm lives in the layer libraries.
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+
+#include <cstdio>
+#include <functional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "util/logging.h"
+
+namespace {
+
+struct PlannedCommand {
+  const char* name;
+  const char* description;
+};
+
+// Subcommands that DESIGN.md plans but whose implementation has not landed yet: they are listed in
+// --help so the shape of the tool is visible, and say so when run.
+constexpr PlannedCommand kPlannedCommands[] = {
+    {"synth", "Generate a synthetic city with ground truth"},
+    {"build-map", "Build a map bundle from a COLMAP model and its features"},
+    {"train", "Train the hierarchical classification network of a map"},
+    {"localize", "Localize a list of queries offline and write a submission file"},
+    {"eval", "Evaluate a submission against ground-truth poses"},
+    {"serve", "Serve localization requests over ZeroMQ"},
+    {"inspect", "Print a map bundle's manifest and statistics"},
+    {"demo", "Run the whole pipeline on an embedded demo map"},
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"hscloc: city-scale visual localization (hierarchical scene coordinate classification)"};
+  app.require_subcommand(1);
+  std::string log_level = "info";
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error or off")
+      ->capture_default_str();
+  app.set_version_flag("--version", "hscloc 0.1.0");
+
+  std::function<int()> run;
+  for (const PlannedCommand& planned : kPlannedCommands) {
+    CLI::App* command = app.add_subcommand(planned.name, planned.description);
+    command->allow_extras();
+    command->callback([&run, name = std::string(planned.name)] {
+      run = [name] {
+        std::fprintf(stderr, "hscloc %s: not built yet\n", name.c_str());
+        return 3;
+      };
+    });
+  }
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& error) {
+    return app.exit(error);
+  }
+  try {
+    hscloc::SetupLogging(log_level);
+    return run();
+  } catch (const std::invalid_argument& error) {
+    std::fprintf(stderr, "error: %s\n", error.what());
+    return 2;
+  } catch (const std::exception& error) {
+    std::fprintf(stderr, "failed: %s\n", error.what());
+    return 1;
+  }
+}

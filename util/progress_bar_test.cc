@@ -1,2 +1,68 @@
 #include "util/progress_bar.h"
+
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
+
+#include <thread>
+#include <vector>
+
+namespace hscloc {
+namespace {
+
+using ::testing::HasSubstr;
+using ::testing::Not;
+
+TEST(ProgressBar, CountsFromManyThreads) {
+  ProgressBar bar("work", 8000, ProgressBar::Display::kNever);
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 4; ++t) {
+    threads.emplace_back([&bar] {
+      for (int i = 0; i < 2000; ++i) bar.Advance();
+    });
+  }
+  for (auto& thread : threads) thread.join();
+  EXPECT_EQ(bar.done(), 8000u);
+  EXPECT_THAT(bar.Render(), HasSubstr("100%"));
+}
+
+TEST(ProgressBar, RendersPercentEtaAndStatus) {
+  ProgressBar bar("train", 200, ProgressBar::Display::kNever);
+  bar.Advance(50);
+  bar.SetStatus("loss 0.42");
+  const std::string line = bar.Render();
+  EXPECT_THAT(line, HasSubstr("train ["));
+  EXPECT_THAT(line, HasSubstr(" 25% 50/200"));
+  EXPECT_THAT(line, HasSubstr("ETA"));
+  EXPECT_THAT(line, HasSubstr("loss 0.42"));
+}
+
+TEST(ProgressBar, UnknownTotalShowsCountOnly) {
+  ProgressBar bar("scan", 0, ProgressBar::Display::kNever);
+  bar.Advance(12);
+  EXPECT_THAT(bar.Render(), Not(HasSubstr("%")));
+  EXPECT_THAT(bar.Render(), HasSubstr("scan 12"));
+}
+
+TEST(ProgressBar, DoesNotDrawWhenNotAskedTo) {
+  ProgressBar bar("quiet", 10, ProgressBar::Display::kNever);
+  EXPECT_FALSE(bar.drawing());
+  ::testing::internal::CaptureStderr();
+  bar.Advance(10);
+  bar.Finish();
+  EXPECT_EQ(::testing::internal::GetCapturedStderr(), "");
+}
+
+TEST(ProgressBar, DrawsFinalLineOnce) {
+  ::testing::internal::CaptureStderr();
+  {
+    ProgressBar bar("loud", 3, ProgressBar::Display::kAlways);
+    bar.Advance(3);
+    bar.Finish();
+  }
+  const std::string output = ::testing::internal::GetCapturedStderr();
+  EXPECT_THAT(output, HasSubstr("loud ["));
+  EXPECT_EQ(std::count(output.begin(), output.end(), '\n'), 1);
+}
+
+}  // namespace
+}  // namespace hscloc
