@@ -8,17 +8,16 @@ function(hscloc_add_library name)
   set_target_properties(${name} PROPERTIES POSITION_INDEPENDENT_CODE ON)
 endfunction()
 
-# hscloc_add_test(NAME SOURCES ... LIBS ... [LABELS ...])
+# hscloc_add_test(NAME SOURCES ... LIBS ...)
 # A GoogleTest executable whose cases are listed individually in ctest.
 function(hscloc_add_test name)
   if(NOT HSCLOC_BUILD_TESTS)
     return()
   endif()
-  cmake_parse_arguments(ARG "" "" "SOURCES;LIBS;LABELS" ${ARGN})
+  cmake_parse_arguments(ARG "" "" "SOURCES;LIBS" ${ARGN})
   add_executable(${name} ${ARG_SOURCES})
   target_link_libraries(${name} PRIVATE ${ARG_LIBS} hscloc_test_support GTest::gmock GTest::gtest_main)
-  gtest_discover_tests(${name}
-    DISCOVERY_TIMEOUT 60
-    PROPERTIES LABELS "${ARG_LABELS}"
-    ENVIRONMENT "HSCLOC_DATA_DIR=${HSCLOC_DATA_DIR};HSCLOC_COLMAP=${COLMAP_EXECUTABLE};QT_QPA_PLATFORM=offscreen")
+  # Test names carry the executable's name so `ctest -R model_feature_io_test` selects a target.
+  # Data and tool locations are compiled into hscloc_test_support (see util/CMakeLists.txt).
+  gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 TEST_PREFIX "${name}.")
 endfunction()

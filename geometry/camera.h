@@ -6,6 +6,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -57,10 +58,22 @@ struct Camera {
   // Mean of the focal lengths (fx, fy or f), in pixels.
   double MeanFocalLength() const;
 
-  // Normalized coordinates (x/z, y/z) -> distorted pixel coordinates.
+  // The projection functions below throw std::invalid_argument for an unknown model or a
+  // parameter count that does not match it, but do not repeat the rest of Check().
+
+  // Normalized coordinates (x/z, y/z) -> distorted pixel coordinates: u = fx * x_distorted + cx.
+  // The fisheye models distort the angle theta = atan(r) from the axis (OPENCV_FISHEYE:
+  // theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8)); THIN_PRISM_FISHEYE applies its
+  // polynomial to the equidistant coordinates theta (x, y) / r. FOV follows the closed form of
+  // Devernay and Faugeras (MVA 2001) for every omega. COLMAP 3.8 swaps in a series below
+  // omega = 0.01 whose sign is wrong in this direction; there the two differ by a relative
+  // omega^2 (2 r^2 / 3 - 1 / 6).
   Eigen::Vector2d ImgFromCam(const Eigen::Vector2d& normalized) const;
-  // Pixel coordinates -> undistorted normalized coordinates (x/z, y/z); inverts ImgFromCam
-  // (iteratively for distorted models).
+  // Pixel coordinates -> undistorted normalized coordinates (x/z, y/z); inverts ImgFromCam to
+  // about 1e-15 (Newton on the radius or angle for the radial models, on both coordinates for the
+  // OpenCV and thin-prism models, closed form for FOV). Returns NaN coordinates where the
+  // distortion has no inverse: beyond the fold of a strong barrel distortion, or at 90 degrees
+  // and more from the axis.
   Eigen::Vector2d CamFromImg(const Eigen::Vector2d& pixel) const;
   // A point in the camera frame (z > 0) -> pixel coordinates.
   Eigen::Vector2d ImgFromPointInCam(const Eigen::Vector3d& point_in_cam) const {

@@ -5,7 +5,8 @@
 // `keypoints` (N x 2), `descriptors` (D x N), optionally `scores` (N) and `image_size` (2), in
 // float16 or float32; a global-descriptor file holds `global_descriptor` (G) per image group.
 // hloc stores keypoints with the centre of the top-left pixel at (0, 0); readers and writers here
-// convert to and from COLMAP's (0.5, 0.5) so that the rest of hscloc sees one convention.
+// convert to and from COLMAP's (0.5, 0.5) so that the rest of hscloc sees one convention: reading
+// adds 0.5 px, writing subtracts it.
 #pragma once
 
 #include <filesystem>
@@ -39,12 +40,17 @@ std::unique_ptr<FeatureReader> OpenFeatureReader(const std::filesystem::path& pa
 // COLMAP database.db: keypoint blobs of 2, 4 or 6 float32 columns (x, y, ...), descriptors uint8
 // (returned as float, unscaled).
 std::unique_ptr<FeatureReader> OpenColmapDatabaseFeatures(const std::filesystem::path& path);
+// hloc .h5 features: image groups are found recursively (any group holding `keypoints`);
+// `descriptors` is required, `scores` optional; any numeric stored type is read as float. The
+// file stays open while the reader lives.
 std::unique_ptr<FeatureReader> OpenH5Features(const std::filesystem::path& path);
 
 enum class H5FloatPrecision { kFloat16, kFloat32 };
 
 // Writes an hloc feature file image by image (streaming: nothing is held back in memory).
-// The file is created (truncated); Close() or the destructor flushes it.
+// The file is created (truncated); Close() or the destructor flushes it, and only Close() reports
+// a failure to. `precision` applies to descriptors and scores; keypoints are always float32
+// (float16 spacing is 1 px from 1024 px on), image_size int64.
 class H5FeatureWriter {
  public:
   H5FeatureWriter(const std::filesystem::path& path, H5FloatPrecision precision);
@@ -52,7 +58,8 @@ class H5FeatureWriter {
   H5FeatureWriter(const H5FeatureWriter&) = delete;
   H5FeatureWriter& operator=(const H5FeatureWriter&) = delete;
 
-  // image_size: width, height in pixels. Throws when the name was written before.
+  // image_size: width, height in pixels. Throws when the name was written before, or when the
+  // features are inconsistent (descriptor or score count, non-finite values).
   void Write(const std::string& image_name, const ImageFeatures& features, int64_t width,
              int64_t height);
   void Close();
@@ -62,7 +69,8 @@ class H5FeatureWriter {
   std::unique_ptr<Impl> impl_;
 };
 
-// Global descriptors (hloc `global_descriptor`), by image name.
+// Global descriptors (hloc `global_descriptor`, shape G; 1 x G is read too), by image name. All
+// must have one dimension; non-finite values throw.
 std::unordered_map<std::string, Eigen::VectorXf> ReadH5GlobalDescriptors(
     const std::filesystem::path& path);
 void WriteH5GlobalDescriptors(const std::filesystem::path& path,

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "tools/commands.h"
 #include "util/logging.h"
 
 namespace {
@@ -21,7 +22,6 @@ struct PlannedCommand {
 // Subcommands that DESIGN.md plans but whose implementation has not landed yet: they are listed in
 // --help so the shape of the tool is visible, and say so when run.
 constexpr PlannedCommand kPlannedCommands[] = {
-    {"synth", "Generate a synthetic city with ground truth"},
     {"build-map", "Build a map bundle from a COLMAP model and its features"},
     {"train", "Train the hierarchical classification network of a map"},
     {"localize", "Localize a list of queries offline and write a submission file"},
@@ -41,7 +41,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.set_version_flag("--version", "hscloc 0.1.0");
 
-  std::function<int()> run;
+  hscloc::CommandRunner run;
+  hscloc::AddSynthCommand(app, run);
   for (const PlannedCommand& planned : kPlannedCommands) {
     CLI::App* command = app.add_subcommand(planned.name, planned.description);
     command->allow_extras();

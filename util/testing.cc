@@ -25,21 +25,32 @@ TempDir::~TempDir() {
   std::filesystem::remove_all(path_, ignored);
 }
 
+namespace {
+
+const char* EnvironmentOr(const char* name, const char* fallback) {
+  const char* value = std::getenv(name);
+  return value != nullptr ? value : fallback;
+}
+
+}  // namespace
+
 std::optional<std::filesystem::path> RealDataDir(const std::string& subdirectory) {
-  const char* root = std::getenv("HSCLOC_DATA_DIR");
-  if (root == nullptr) return std::nullopt;
+  const char* root = EnvironmentOr("HSCLOC_DATA_DIR", HSCLOC_DEFAULT_DATA_DIR);
+  if (*root == '\0') return std::nullopt;
   const std::filesystem::path path = std::filesystem::path(root) / subdirectory;
   if (!std::filesystem::is_directory(path)) return std::nullopt;
   return path;
 }
 
 std::optional<std::string> ColmapExecutable() {
-  const char* path = std::getenv("HSCLOC_COLMAP");
-  if (path == nullptr || *path == '\0' || access(path, X_OK) != 0) return std::nullopt;
+  const char* path = EnvironmentOr("HSCLOC_COLMAP", HSCLOC_DEFAULT_COLMAP);
+  if (*path == '\0' || access(path, X_OK) != 0) return std::nullopt;
   return std::string(path);
 }
 
 int RunCommand(const std::string& command, const std::string& log_path) {
+  // COLMAP links Qt, which needs a display unless told to draw nowhere.
+  setenv("QT_QPA_PLATFORM", "offscreen", /*overwrite=*/0);
   const std::string full = log_path.empty() ? command : command + " > '" + log_path + "' 2>&1";
   const int status = std::system(full.c_str());
   if (status == -1) throw std::runtime_error("could not run: " + command);

@@ -1,0 +1,80 @@
+// The hierarchical k-means tree over the map's 3D points whose label paths the network predicts
+// (Li et al., "Hierarchical Scene Coordinate Classification and Regression for Visual
+// Localization", CVPR 2020, Sec. 3.1).
+//
+// Every point gets a label path (l_1, ..., l_levels), each label the index of a child among its
+// parent's children (0 .. branching-1), and every leaf holds exactly one point, so a full label
+// path decodes to one point. A cluster with no more points than the branching factor gives each
+// point its own child; deeper levels then carry label 0. To guarantee that, each k-means split is
+// capacity-constrained: a child may hold at most branching^(levels below it) points.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <iosfwd>
+#include <vector>
+
+namespace hscloc {
+
+struct LabelTreeOptions {
+  int levels = 4;
+  int branching = 100;        // at most 256: labels are stored as bytes
+  int kmeans_iterations = 20;
+  uint64_t seed = 0;
+  int num_threads = 0;        // <= 0: all cores
+  bool show_progress = true;
+  void Check() const;
+};
+
+class LabelTree {
+ public:
+  using Label = uint8_t;
+
+  // Builds the tree over points (dense point index -> position). Throws when the points cannot
+  // fit (more than branching^levels points) or are not finite.
+  static LabelTree Build(const std::vector<Eigen::Vector3d>& points, const LabelTreeOptions& options);
+
+  int levels() const { return levels_; }
+  int branching() const { return branching_; }
+  size_t NumPoints() const { return labels_.size() / std::max(levels_, 1); }
+
+  // The label path of a point: `levels` labels.
+  const Label* LabelsOfPoint(uint32_t point_index) const {
+    return labels_.data() + static_cast<size_t>(point_index) * levels_;
+  }
+  // The point a full label path leads to, or -1 when no point is there (a path through an empty
+  // or missing child).
+  int64_t PointOfLabels(const Label* labels) const;
+
+  // Nodes: level 0 is the root; a node's children are contiguous, first_child(node) ..
+  // first_child(node) + num_children(node) - 1, in label order. A leaf (level == levels) holds a
+  // point.
+  size_t NumNodes() const { return node_level_.size(); }
+  int NodeLevel(uint32_t node) const { return node_level_[node]; }
+  uint32_t FirstChild(uint32_t node) const { return first_child_[node]; }
+  uint32_t NumChildren(uint32_t node) const { return num_children_[node]; }
+  // The point of a leaf node; -1 for inner nodes.
+  int64_t PointOfLeaf(uint32_t node) const;
+  // Cluster centre of a node (mean of its points), for the regression variant.
+  const Eigen::Vector3f& Center(uint32_t node) const { return centers_[node]; }
+  // The node a label prefix leads to (`depth` labels), or -1.
+  int64_t NodeOfLabels(const Label* labels, int depth) const;
+
+  void Write(std::ostream& stream) const;
+  // Throws std::invalid_argument naming `source` when the data is truncated or inconsistent.
+  static LabelTree Read(std::istream& stream, const std::string& source);
+
+  bool operator==(const LabelTree& other) const;
+
+ private:
+  int levels_ = 0;
+  int branching_ = 0;
+  std::vector<Label> labels_;  // point-major: labels_[point * levels + level]
+  std::vector<uint8_t> node_level_;
+  std::vector<uint32_t> first_child_;
+  std::vector<uint32_t> num_children_;
+  std::vector<int64_t> leaf_point_;  // per node; -1 for inner nodes
+  std::vector<Eigen::Vector3f> centers_;
+};
+
+}  // namespace hscloc

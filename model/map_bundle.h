@@ -1,0 +1,71 @@
+// A map bundle: one directory holding `manifest.json` and binary blobs. The manifest records the
+// format version, free-form metadata (counts, options) and the size and SHA-256 of every blob.
+//
+// Writing is atomic: blobs go into a sibling temporary directory that replaces the bundle only in
+// Commit(), so a crash never leaves a half-written map under the bundle's name. Opening verifies
+// the format version and every blob's size and checksum, and names the bad file.
+#pragma once
+
+#include <filesystem>
+#include <functional>
+#include <iosfwd>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <string>
+
+namespace hscloc {
+
+inline constexpr int kMapBundleFormatVersion = 1;
+
+class MapBundleWriter {
+ public:
+  // Starts a new bundle that will replace `bundle_dir` on Commit().
+  explicit MapBundleWriter(std::filesystem::path bundle_dir);
+  // Starts from an existing bundle: its blobs and manifest are carried over (hard links where the
+  // file system allows, else copies) unless replaced; used to add trained weights to a map.
+  static MapBundleWriter Update(const std::filesystem::path& bundle_dir);
+  // Removes the temporary directory when Commit() was not reached.
+  ~MapBundleWriter();
+  MapBundleWriter(MapBundleWriter&&) noexcept;
+  MapBundleWriter(const MapBundleWriter&) = delete;
+  MapBundleWriter& operator=(const MapBundleWriter&) = delete;
+
+  // Writes (or replaces) the blob `name` (a plain file name, no '/') through `write`.
+  void AddBlob(const std::string& name, const std::function<void(std::ostream&)>& write);
+  // Metadata recorded in the manifest under "metadata".
+  nlohmann::json& metadata() { return metadata_; }
+
+  // Writes the manifest (with every blob's size and SHA-256) and moves the bundle into place.
+  void Commit();
+
+ private:
+  std::filesystem::path bundle_dir_;
+  std::filesystem::path staging_dir_;
+  nlohmann::json metadata_ = nlohmann::json::object();
+  std::map<std::string, std::pair<uint64_t, std::string>> blobs_;  // name -> (size, sha256 hex)
+  bool committed_ = false;
+};
+
+class MapBundle {
+ public:
+  // Reads the manifest and verifies the format version and every blob (size and SHA-256). Throws
+  // std::invalid_argument naming the bundle and the missing, truncated or corrupt file.
+  static MapBundle Open(const std::filesystem::path& bundle_dir);
+
+  const std::filesystem::path& dir() const { return dir_; }
+  const nlohmann::json& metadata() const { return metadata_; }
+  const nlohmann::json& manifest() const { return manifest_; }
+  bool HasBlob(const std::string& name) const { return blobs_.count(name) > 0; }
+  std::vector<std::string> BlobNames() const;
+  uint64_t BlobSize(const std::string& name) const;
+  // The blob's bytes, as verified at Open(); throws naming the blob when absent.
+  const std::string& Blob(const std::string& name) const;
+
+ private:
+  std::filesystem::path dir_;
+  nlohmann::json manifest_;
+  nlohmann::json metadata_;
+  std::map<std::string, std::string> blobs_;
+};
+
+}  // namespace hscloc

@@ -1,0 +1,13 @@
+// Each subcommand of `hscloc` registers its options and, when chosen, sets the function to run.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <functional>
+
+namespace hscloc {
+
+using CommandRunner = std::function<int()>;
+
+void AddSynthCommand(CLI::App& app, CommandRunner& run);
+
+}  // namespace hscloc
