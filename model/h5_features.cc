@@ -10,6 +10,7 @@
 
 #include "model/feature_io.h"
 #include "util/check.h"
+#include "util/half.h"
 
 namespace hscloc {
 namespace {
@@ -89,27 +90,9 @@ Handle CheckedHandle(hid_t id, Handle::Closer close, const std::filesystem::path
   return Handle(id, close);
 }
 
-// IEEE binary16 bits of `value`, rounded to nearest even; +-inf beyond the half range.
 // HDF5 1.10's own float32 -> float16 conversion gets the exponent wrong by one when rounding
-// carries into it (a value just below 0.125 becomes 0.0625; h5py issue #819), so writes never ask
-// HDF5 to narrow. Widening on reads is exact (the tests read back every half).
-uint16_t FloatToHalfBits(float value) {
-  uint32_t bits;
-  std::memcpy(&bits, &value, sizeof(bits));
-  const auto sign = static_cast<uint16_t>((bits >> 16) & 0x8000u);
-  const uint32_t magnitude = bits & 0x7fffffffu;
-  if (magnitude > 0x7f800000u) return sign | 0x7e00u;   // NaN
-  if (magnitude >= 0x477ff000u) return sign | 0x7c00u;  // rounds to at least 65520: inf
-  if (magnitude < 0x38800000u) {
-    // Below 2^-14, the half subnormals: multiples of 2^-24. Scaling by 2^24 is exact and
-    // nearbyint rounds to nearest even; 1024 lands on the smallest normal's bits, as it should.
-    return sign | static_cast<uint16_t>(std::nearbyint(std::fabs(value) * 16777216.0f));
-  }
-  // Round the 23-bit mantissa to 10 bits (to nearest, ties to even); a carry correctly bumps
-  // the exponent. Then rebias the exponent from 127 to 15.
-  const uint32_t rounded = magnitude + 0xfffu + ((magnitude >> 13) & 1u);
-  return sign | static_cast<uint16_t>((rounded - (112u << 23)) >> 13);
-}
+// carries into it (a value just below 0.125 becomes 0.0625; h5py issue #819), so writes convert
+// with FloatToHalfBits and never ask HDF5 to narrow. Widening on reads is exact.
 
 // How floats are stored: float32, or float16 laid out as h5py defines it (HDF5 1.10 has no
 // predefined half type).
@@ -262,8 +245,8 @@ void CheckImageName(const std::string& name, const std::filesystem::path& path) 
 // Creation properties without modification times: HDF5 stamps objects by default, which would
 // make two writes of the same features differ byte for byte.
 Handle UntimedCreationProperties(hid_t property_class, const std::filesystem::path& path) {
-  Handle properties = CheckedHandle(H5Pcreate(property_class), H5Pclose, path,
-                                    "creating object properties");
+  Handle properties =
+      CheckedHandle(H5Pcreate(property_class), H5Pclose, path, "creating object properties");
   if (H5Pset_obj_track_times(properties.get(), false) < 0) {
     ThrowHdf5Error(path, "switching off object modification times");
   }
@@ -280,11 +263,10 @@ Handle OpenOrCreateGroup(hid_t file, const std::string& name, const std::filesys
     const size_t end = std::min(name.find('/', begin), name.size());
     const std::string component = name.substr(begin, end - begin);
     const std::string so_far = name.substr(0, end);
-    const hid_t id =
-        LinkExists(group.get(), component)
-            ? H5Gopen2(group.get(), component.c_str(), H5P_DEFAULT)
-            : H5Gcreate2(group.get(), component.c_str(), H5P_DEFAULT, group_properties.get(),
-                         H5P_DEFAULT);
+    const hid_t id = LinkExists(group.get(), component)
+                         ? H5Gopen2(group.get(), component.c_str(), H5P_DEFAULT)
+                         : H5Gcreate2(group.get(), component.c_str(), H5P_DEFAULT,
+                                      group_properties.get(), H5P_DEFAULT);
     group = CheckedHandle(id, H5Gclose, path, "creating group '" + so_far + "'");
     begin = end + 1;
   }

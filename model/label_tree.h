@@ -5,23 +5,28 @@
 // Every point gets a label path (l_1, ..., l_levels), each label the index of a child among its
 // parent's children (0 .. branching-1), and every leaf holds exactly one point, so a full label
 // path decodes to one point. A cluster with no more points than the branching factor gives each
-// point its own child; deeper levels then carry label 0. To guarantee that, each k-means split is
-// capacity-constrained: a child may hold at most branching^(levels below it) points.
+// point its own child (in point index order); deeper levels then carry label 0. To guarantee that,
+// each k-means split (FAISS) is capacity-constrained: a child may hold at most
+// branching^(levels below it) points, and points of over-full clusters move to the clusters with
+// room that increase their squared distance least. Empty clusters are dropped, so the children of
+// a node are labelled 0 .. num_children - 1 without gaps.
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <cstdint>
 #include <iosfwd>
+#include <string>
 #include <vector>
 
 namespace hscloc {
 
 struct LabelTreeOptions {
   int levels = 4;
-  int branching = 100;        // at most 256: labels are stored as bytes
-  int kmeans_iterations = 20;
-  uint64_t seed = 0;
-  int num_threads = 0;        // <= 0: all cores
+  int branching = 100;         // at most 256: labels are stored as bytes
+  int kmeans_iterations = 20;  // per split; splits with < 4 points per cluster run at most 8
+  uint64_t seed = 0;           // the tree depends on the seed, not on num_threads
+  int num_threads = 0;         // <= 0: all cores
   bool show_progress = true;
   void Check() const;
 };
@@ -32,7 +37,8 @@ class LabelTree {
 
   // Builds the tree over points (dense point index -> position). Throws when the points cannot
   // fit (more than branching^levels points) or are not finite.
-  static LabelTree Build(const std::vector<Eigen::Vector3d>& points, const LabelTreeOptions& options);
+  static LabelTree Build(const std::vector<Eigen::Vector3d>& points,
+                         const LabelTreeOptions& options);
 
   int levels() const { return levels_; }
   int branching() const { return branching_; }
@@ -57,9 +63,10 @@ class LabelTree {
   int64_t PointOfLeaf(uint32_t node) const;
   // Cluster centre of a node (mean of its points), for the regression variant.
   const Eigen::Vector3f& Center(uint32_t node) const { return centers_[node]; }
-  // The node a label prefix leads to (`depth` labels), or -1.
+  // The node a label prefix leads to (`depth` labels, 0 .. levels; other depths throw), or -1.
   int64_t NodeOfLabels(const Label* labels, int depth) const;
 
+  // Little-endian: magic "HSCT", version, shape, labels, then the node arrays.
   void Write(std::ostream& stream) const;
   // Throws std::invalid_argument naming `source` when the data is truncated or inconsistent.
   static LabelTree Read(std::istream& stream, const std::string& source);
@@ -75,6 +82,9 @@ class LabelTree {
   std::vector<uint32_t> num_children_;
   std::vector<int64_t> leaf_point_;  // per node; -1 for inner nodes
   std::vector<Eigen::Vector3f> centers_;
+
+  // Derives the nodes (breadth-first, children in label order) and their centres from labels_.
+  void BuildNodesFromLabels(const std::vector<Eigen::Vector3d>& points);
 };
 
 }  // namespace hscloc

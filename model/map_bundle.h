@@ -6,12 +6,15 @@
 // the format version and every blob's size and checksum, and names the bad file.
 #pragma once
 
+#include <cstdint>
 #include <filesystem>
 #include <functional>
 #include <iosfwd>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <utility>
+#include <vector>
 
 namespace hscloc {
 
@@ -19,7 +22,8 @@ inline constexpr int kMapBundleFormatVersion = 1;
 
 class MapBundleWriter {
  public:
-  // Starts a new bundle that will replace `bundle_dir` on Commit().
+  // Starts a new bundle that will replace `bundle_dir` on Commit(). Throws when `bundle_dir` exists
+  // and is neither empty nor a map bundle, so that a mistyped path never deletes unrelated files.
   explicit MapBundleWriter(std::filesystem::path bundle_dir);
   // Starts from an existing bundle: its blobs and manifest are carried over (hard links where the
   // file system allows, else copies) unless replaced; used to add trained weights to a map.
@@ -30,17 +34,22 @@ class MapBundleWriter {
   MapBundleWriter(const MapBundleWriter&) = delete;
   MapBundleWriter& operator=(const MapBundleWriter&) = delete;
 
-  // Writes (or replaces) the blob `name` (a plain file name, no '/') through `write`.
+  // Writes (or replaces) the blob `name` through `write`. `name` is a plain file name: not empty,
+  // no '/', not starting with '.', not "manifest.json". Throws naming the blob when the stream
+  // fails (disk full); when `write` throws, the bundle being staged keeps its earlier content.
   void AddBlob(const std::string& name, const std::function<void(std::ostream&)>& write);
   // Metadata recorded in the manifest under "metadata".
   nlohmann::json& metadata() { return metadata_; }
 
-  // Writes the manifest (with every blob's size and SHA-256) and moves the bundle into place.
+  // Writes the manifest (with every blob's size and SHA-256), syncs it to disk and moves the bundle
+  // into place. An existing bundle is renamed aside and removed only once the new one is in place;
+  // if the swap fails the old bundle is restored.
   void Commit();
 
  private:
   std::filesystem::path bundle_dir_;
-  std::filesystem::path staging_dir_;
+  std::filesystem::path staging_dir_;  // empty once moved from
+  std::string unique_suffix_;          // "<pid>-<random>", shared by the staging and old names
   nlohmann::json metadata_ = nlohmann::json::object();
   std::map<std::string, std::pair<uint64_t, std::string>> blobs_;  // name -> (size, sha256 hex)
   bool committed_ = false;

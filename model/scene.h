@@ -25,9 +25,9 @@ struct SceneImage {
 
 struct Scene {
   std::map<camera_t, Camera> cameras;
-  std::vector<SceneImage> images;                        // dense image index -> image
-  std::vector<point3D_t> point3D_ids;                    // dense point index -> COLMAP id
-  std::vector<Eigen::Vector3d> points;                   // dense point index -> position in world
+  std::vector<SceneImage> images;       // dense image index -> image
+  std::vector<point3D_t> point3D_ids;   // dense point index -> COLMAP id
+  std::vector<Eigen::Vector3d> points;  // dense point index -> position in world
   // Observations: one row per (image, keypoint) seeing a point.
   std::vector<uint32_t> observation_image_indices;
   std::vector<uint32_t> observation_point_indices;
@@ -44,7 +44,8 @@ struct Scene {
 
   // Images in image-id order, points in point3D-id order; observations as joined (features of
   // every 2D point with a 3D point). Points without any observation are kept (they are still
-  // predicted by nothing but cost nothing).
+  // predicted by nothing but cost nothing). Throws std::invalid_argument naming the observation
+  // and the id when an observation refers to an image or point the reconstruction lacks.
   static Scene FromReconstruction(const Reconstruction& reconstruction,
                                   const Observations& observations);
 
@@ -54,7 +55,8 @@ struct Scene {
   friend class SceneAccess;
 
  public:
-  // Rebuilds the id -> index lookups after images or point3D_ids were assigned directly.
+  // Rebuilds the id -> index lookups after images or point3D_ids were assigned directly; throws
+  // when an id appears twice.
   void RebuildIndex();
 };
 

@@ -71,11 +71,11 @@ void SyntheticCityOptions::Check() const {
                   blocks_x, blocks_y);
   THROW_CHECK_MSG(block_size_m > 0, "block_size_m must be positive (got {})", block_size_m);
   THROW_CHECK_MSG(street_width_m >= 4, "street_width_m must be >= 4 (got {})", street_width_m);
-  THROW_CHECK_MSG(building_height_min_m > eye_height_m &&
-                      building_height_max_m >= building_height_min_m,
-                  "building heights must satisfy eye_height_m < building_height_min_m <= "
-                  "building_height_max_m (got {}, {})",
-                  building_height_min_m, building_height_max_m);
+  THROW_CHECK_MSG(
+      building_height_min_m > eye_height_m && building_height_max_m >= building_height_min_m,
+      "building heights must satisfy eye_height_m < building_height_min_m <= "
+      "building_height_max_m (got {}, {})",
+      building_height_min_m, building_height_max_m);
   THROW_CHECK_MSG(facade_points_per_m2 > 0, "facade_points_per_m2 must be positive (got {})",
                   facade_points_per_m2);
   THROW_CHECK_MSG(ground_points_per_m2 >= 0, "ground_points_per_m2 must be >= 0 (got {})",
@@ -155,13 +155,13 @@ SyntheticCityOptions SyntheticCityOptions::Preset(const std::string& name) {
     options.num_day_queries = 200;
     options.num_night_queries = 100;
   } else if (name == "aachen") {
-    options.blocks_x = 11;
-    options.blocks_y = 11;
+    options.blocks_x = 10;
+    options.blocks_y = 10;
     options.block_size_m = 40;
-    options.facade_points_per_m2 = 4.8;
-    options.stop_spacing_m = 10;
-    options.headings_per_stop = 2;
+    options.facade_points_per_m2 = 8.2;
+    options.stop_spacing_m = 5.5;
     options.num_devices = 8;
+    options.max_keypoints_per_image = 4096;
     options.num_day_queries = 824;
     options.num_night_queries = 98;
   } else {
@@ -196,9 +196,9 @@ void SyntheticCity::LayOutBlocksAndPoints() {
       const double y0 = options_.street_width_m + j * pitch;
       const double height =
           heights.Uniform(options_.building_height_min_m, options_.building_height_max_m);
-      blocks_.emplace_back(Eigen::Vector3d(x0, y0, 0),
-                           Eigen::Vector3d(x0 + options_.block_size_m,
-                                           y0 + options_.block_size_m, height));
+      blocks_.emplace_back(
+          Eigen::Vector3d(x0, y0, 0),
+          Eigen::Vector3d(x0 + options_.block_size_m, y0 + options_.block_size_m, height));
     }
   }
 
@@ -240,8 +240,8 @@ void SyntheticCity::LayOutBlocksAndPoints() {
   while (static_cast<int>(ground_points_.size()) < num_ground) {
     const Eigen::Vector3d point(random.Uniform(0, extent_x), random.Uniform(0, extent_y), 0);
     const bool under_building = std::any_of(blocks_.begin(), blocks_.end(), [&](const auto& box) {
-      return point.x() > box.min().x() && point.x() < box.max().x() &&
-             point.y() > box.min().y() && point.y() < box.max().y();
+      return point.x() > box.min().x() && point.x() < box.max().x() && point.y() > box.min().y() &&
+             point.y() < box.max().y();
     });
     if (under_building) continue;
     ground_points_.push_back(static_cast<uint32_t>(points_.size()));
@@ -259,7 +259,8 @@ void SyntheticCity::AssignRepeatedAppearance() {
 
   Random random(options_.seed, {kStreamRepeated});
   std::vector<char> repeated(num_points, 0);
-  for (size_t p = 0; p < num_points; ++p) repeated[p] = random.Bernoulli(options_.repeated_fraction);
+  for (size_t p = 0; p < num_points; ++p)
+    repeated[p] = random.Bernoulli(options_.repeated_fraction);
   std::vector<uint32_t> originals;
   for (size_t p = 0; p < num_points; ++p) {
     if (!repeated[p] && point_blocks_[p] >= 0) originals.push_back(static_cast<uint32_t>(p));
@@ -333,8 +334,8 @@ void SyntheticCity::PlaceDatabaseViews() {
 }
 
 void SyntheticCity::PlaceQueries(QueryCondition condition) {
-  const int count = condition == QueryCondition::kDay ? options_.num_day_queries
-                                                      : options_.num_night_queries;
+  const int count =
+      condition == QueryCondition::kDay ? options_.num_day_queries : options_.num_night_queries;
   std::vector<SyntheticView>& queries =
       condition == QueryCondition::kDay ? day_queries_ : night_queries_;
   const double pitch = options_.block_size_m + options_.street_width_m;
@@ -359,8 +360,8 @@ void SyntheticCity::PlaceQueries(QueryCondition condition) {
                                    options_.eye_height_m + random.Uniform(-0.3, 0.3));
       const double street_yaw = along_x ? 0.0 : M_PI / 2;
       const double side = random.Bernoulli(0.5) ? M_PI / 2 : -M_PI / 2;
-      const double yaw = street_yaw + side +
-                         random.Uniform(-1, 1) * options_.query_yaw_jitter_deg * kDegToRad;
+      const double yaw =
+          street_yaw + side + random.Uniform(-1, 1) * options_.query_yaw_jitter_deg * kDegToRad;
       const double pitch_up = random.Uniform(0, options_.pitch_up_max_deg) * kDegToRad;
       const double roll = random.Uniform(-1, 1) * options_.query_roll_max_deg * kDegToRad;
       const auto& size = sizes[random.UniformInt(3)];
@@ -370,7 +371,8 @@ void SyntheticCity::PlaceQueries(QueryCondition condition) {
           static_cast<camera_t>(q + 1), size[0], size[1],
           random.Uniform(options_.query_focal_min_px, options_.query_focal_max_px), random,
           options_.radial_distortion_max);
-      view.cam_from_world = CamFromWorldFromCenter(center, WorldFromCamRotation(yaw, pitch_up, roll));
+      view.cam_from_world =
+          CamFromWorldFromCenter(center, WorldFromCamRotation(yaw, pitch_up, roll));
       if (static_cast<int>(VisiblePoints(view.camera, view.cam_from_world).size()) >=
           options_.min_query_points) {
         queries.push_back(std::move(view));
@@ -446,7 +448,8 @@ std::vector<uint32_t> SyntheticCity::VisiblePoints(const Camera& camera,
     const Eigen::Vector3d point_in_cam = cam_from_world * point;
     if (point_in_cam.z() < 0.1) return;
     const Eigen::Vector2d normalized = point_in_cam.hnormalized();
-    if (std::abs(normalized.x()) > max_normalized_x || std::abs(normalized.y()) > max_normalized_y) {
+    if (std::abs(normalized.x()) > max_normalized_x ||
+        std::abs(normalized.y()) > max_normalized_y) {
       return;
     }
     const Eigen::Vector2d pixel = camera.ImgFromCam(normalized);
@@ -480,8 +483,8 @@ SyntheticViewFeatures SyntheticCity::MakeViewFeatures(const SyntheticView& view,
     if (!night || random.Bernoulli(options_.night_detection_rate)) detected.push_back(p);
   }
   const int max_keypoints = options_.max_keypoints_per_image;
-  const int clutter = std::min(night ? options_.night_clutter_per_image : options_.clutter_per_image,
-                               max_keypoints / 4);
+  const int clutter = std::min(
+      night ? options_.night_clutter_per_image : options_.clutter_per_image, max_keypoints / 4);
   const size_t max_points = static_cast<size_t>(max_keypoints - clutter);
   if (detected.size() > max_points) {
     // A partial Fisher-Yates shuffle keeps a uniform random subset.

@@ -34,14 +34,14 @@ struct SyntheticCityOptions {
 
   // --- Database cameras: stops along the street centre lines, several headings per stop.
   double stop_spacing_m = 6.0;
-  int headings_per_stop = 2;          // 2: both sides; 4: also the diagonals ahead
+  int headings_per_stop = 2;  // 2: both sides; 4: also the diagonals ahead
   double heading_jitter_deg = 15.0;
   double eye_height_m = 1.6;
   double pitch_up_max_deg = 12.0;
-  double lateral_jitter_m = 2.0;      // off the street centre line
-  double focal_min_px = 700.0;        // each device draws its focal length in [min, max]
+  double lateral_jitter_m = 2.0;  // off the street centre line
+  double focal_min_px = 700.0;    // each device draws its focal length in [min, max]
   double focal_max_px = 1200.0;
-  int num_devices = 3;                // distinct intrinsics (COLMAP cameras) of the database
+  int num_devices = 3;  // distinct intrinsics (COLMAP cameras) of the database
   int image_width_px = 1024;
   int image_height_px = 768;
   double radial_distortion_max = 0.05;  // |k| of SIMPLE_RADIAL

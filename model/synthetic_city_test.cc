@@ -198,8 +198,8 @@ TEST(SyntheticCity, RepeatedStructureMakesDescriptorsAmbiguous) {
   }
   int wrong_shared = 0, total_shared = 0, wrong_unique = 0, total_unique = 0;
   for (size_t q = 0; q < city.queries(QueryCondition::kDay).size(); ++q) {
-    const SyntheticViewFeatures made =
-        city.MakeViewFeatures(city.queries(QueryCondition::kDay)[q], QueryCondition::kDay, 1000 + q);
+    const SyntheticViewFeatures made = city.MakeViewFeatures(city.queries(QueryCondition::kDay)[q],
+                                                             QueryCondition::kDay, 1000 + q);
     for (size_t k = 0; k < made.point_of_keypoint.size(); ++k) {
       const int64_t point = made.point_of_keypoint[k];
       if (point < 0) continue;
@@ -311,8 +311,8 @@ TEST(SyntheticCityWriter, ColmapAcceptsTheModel) {
   const SyntheticCityStats stats =
       WriteSyntheticCity(SyntheticCity(options), temp / "city", QuietWrite());
   const std::string log = (temp / "analyzer.log").string();
-  ASSERT_EQ(testing::RunCommand(colmap + " model_analyzer --path " + (temp / "city" / "map").string(),
-                                log),
+  ASSERT_EQ(testing::RunCommand(
+                colmap + " model_analyzer --path " + (temp / "city" / "map").string(), log),
             0);
   const std::string output = ReadFile(log);
   EXPECT_THAT(output, HasSubstr("Points: " + std::to_string(stats.num_map_points)));

@@ -28,9 +28,9 @@ uint64_t ViewKey(QueryCondition condition, bool is_query, size_t index) {
 }
 
 std::vector<SyntheticViewFeatures> MakeBatch(const SyntheticCity& city,
-                                             const std::vector<SyntheticView>& views,
-                                             size_t begin, size_t end, QueryCondition condition,
-                                             bool is_query, int num_threads) {
+                                             const std::vector<SyntheticView>& views, size_t begin,
+                                             size_t end, QueryCondition condition, bool is_query,
+                                             int num_threads) {
   std::vector<SyntheticViewFeatures> batch(end - begin);
   ParallelFor(end - begin, num_threads, [&](size_t lo, size_t hi) {
     for (size_t i = lo; i < hi; ++i) {
@@ -68,16 +68,17 @@ Eigen::Matrix<uint8_t, 3, 1> BlockColor(int block) {
 
 void WriteReadme(const fs::path& path, const SyntheticCityStats& stats) {
   std::ofstream stream = OpenText(path);
-  stream << "# Synthetic city (hscloc synth)\n\n"
-         << "A street grid of building blocks with known geometry; see stats.json for the options\n"
-         << "and counts. World frame: metres, z up. Poses: cam_from_world (COLMAP).\n\n"
-         << "| file | content |\n| --- | --- |\n"
-         << "| map/ | COLMAP binary model of the " << stats.num_database_images
-         << " database images and " << stats.num_map_points << " points |\n"
-         << "| features.h5 | hloc-style local features of database and query images |\n"
-         << "| queries/*_queries_with_intrinsics.txt | Aachen format query lists (day, night) |\n"
-         << "| queries_gt.txt | ground-truth cam_from_world of every query |\n"
-         << "| queries/point3D_ids.txt | per query keypoint, the map point it detects (-1: none) |\n";
+  stream
+      << "# Synthetic city (hscloc synth)\n\n"
+      << "A street grid of building blocks with known geometry; see stats.json for the options\n"
+      << "and counts. World frame: metres, z up. Poses: cam_from_world (COLMAP).\n\n"
+      << "| file | content |\n| --- | --- |\n"
+      << "| map/ | COLMAP binary model of the " << stats.num_database_images
+      << " database images and " << stats.num_map_points << " points |\n"
+      << "| features.h5 | hloc-style local features of database and query images |\n"
+      << "| queries/*_queries_with_intrinsics.txt | Aachen format query lists (day, night) |\n"
+      << "| queries_gt.txt | ground-truth cam_from_world of every query |\n"
+      << "| queries/point3D_ids.txt | per query keypoint, the map point it detects (-1: none) |\n";
 }
 
 }  // namespace
@@ -113,9 +114,9 @@ SyntheticCityStats WriteSyntheticCity(const SyntheticCity& city, const fs::path&
   const std::vector<SyntheticView>& database_views = city.database_views();
   const std::vector<SyntheticView>& day = city.queries(QueryCondition::kDay);
   const std::vector<SyntheticView>& night = city.queries(QueryCondition::kNight);
-  ProgressBar progress("synth", database_views.size() + day.size() + night.size(),
-                       options.show_progress ? ProgressBar::Display::kAuto
-                                             : ProgressBar::Display::kNever);
+  ProgressBar progress(
+      "synth", database_views.size() + day.size() + night.size(),
+      options.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
 
   H5FeatureWriter features(partial / "features.h5", options.precision);
   Reconstruction reconstruction;
@@ -185,8 +186,9 @@ SyntheticCityStats WriteSyntheticCity(const SyntheticCity& city, const fs::path&
   std::ofstream point_ids = OpenText(partial / "queries" / "point3D_ids.txt");
   for (const QueryCondition condition : {QueryCondition::kDay, QueryCondition::kNight}) {
     const std::vector<SyntheticView>& queries = city.queries(condition);
-    std::ofstream list = OpenText(partial / "queries" /
-                                  (QueryConditionName(condition) + "_time_queries_with_intrinsics.txt"));
+    std::ofstream list =
+        OpenText(partial / "queries" /
+                 (QueryConditionName(condition) + "_time_queries_with_intrinsics.txt"));
     for (size_t begin = 0; begin < queries.size(); begin += batch_size) {
       const size_t end = std::min(queries.size(), begin + batch_size);
       const std::vector<SyntheticViewFeatures> batch =
@@ -216,8 +218,9 @@ SyntheticCityStats WriteSyntheticCity(const SyntheticCity& city, const fs::path&
   stats.num_day_queries = day.size();
   stats.num_night_queries = night.size();
   stats.mean_track_length =
-      stats.num_map_points ? static_cast<double>(stats.num_database_observations) / stats.num_map_points
-                           : 0.0;
+      stats.num_map_points
+          ? static_cast<double>(stats.num_database_observations) / stats.num_map_points
+          : 0.0;
   OpenText(partial / "stats.json") << stats.ToJson() << '\n';
   WriteReadme(partial / "README.md", stats);
 

@@ -5,8 +5,8 @@
 //   queries/day_time_queries_with_intrinsics.txt, queries/night_time_queries_with_intrinsics.txt
 //                                Aachen format: NAME MODEL WIDTH HEIGHT PARAMS...
 //   queries_gt.txt               NAME QW QX QY QZ TX TY TZ (cam_from_world)
-//   queries/point3D_ids.txt      NAME ID... per query keypoint (-1: clutter or a point not in the map)
-//   stats.json, README.md        counts and what each file is
+//   queries/point3D_ids.txt      NAME ID... per query keypoint (-1: clutter or a point not in the
+//   map) stats.json, README.md        counts and what each file is
 #pragma once
 
 #include <filesystem>

@@ -23,6 +23,7 @@ class Visibility {
   size_t NumPoints() const { return num_points_; }
   size_t NumEntries() const { return point_indices_.size(); }
 
+  // Throws when image_index is out of range; a point index out of range is simply not visible.
   bool IsVisible(uint32_t image_index, uint32_t point_index) const;
   // The sorted points of an image, as [begin, end).
   const uint32_t* PointsBegin(uint32_t image_index) const {
@@ -35,10 +36,13 @@ class Visibility {
     return offsets_[image_index + 1] - offsets_[image_index];
   }
 
+  // Little-endian: magic "HSCV", version, counts, the end offset of each image, the points.
   void Write(std::ostream& stream) const;
+  // Throws std::invalid_argument naming `source` when the data is truncated or inconsistent
+  // (offsets out of order, points of an image not sorted, unique and in range).
   static Visibility Read(std::istream& stream, const std::string& source);
 
-  bool operator==(const Visibility& other) const = default;
+  bool operator==(const Visibility& other) const;
 
  private:
   size_t num_points_ = 0;

@@ -15,9 +15,12 @@ namespace hscloc {
 struct GlobalIndexOptions {
   enum class Type { kFlat, kIvfPq };
   Type type = Type::kFlat;
-  int ivf_lists = 1024;         // IVF-PQ: coarse cells
-  int pq_subquantizers = 32;    // IVF-PQ: bytes per vector (must divide the dimension)
-  int nprobe = 32;              // IVF-PQ: cells searched per query
+  // IVF-PQ: coarse cells; capped at (database size / 39) so that k-means has enough points per
+  // cell (FAISS's rule of thumb).
+  int ivf_lists = 1024;
+  int pq_subquantizers = 32;  // IVF-PQ: bytes per vector (must divide the dimension)
+  int nprobe = 32;            // IVF-PQ: cells searched per query
+  // Throws std::invalid_argument naming the first field out of range.
   void Check() const;
 };
 
@@ -28,21 +31,29 @@ struct RetrievalHit {
 
 class GlobalIndex {
  public:
-  GlobalIndex();
+  GlobalIndex();  // empty, of dimension 0: Build or Read one to search
   ~GlobalIndex();
   GlobalIndex(GlobalIndex&&) noexcept;
   GlobalIndex& operator=(GlobalIndex&&) noexcept;
 
-  // descriptors: one row per database image (dense index order), unit length.
-  static GlobalIndex Build(const Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic,
-                                               Eigen::RowMajor>& descriptors,
-                           const GlobalIndexOptions& options = {});
+  // descriptors: one row per database image (dense index order), unit length (a zero row, an
+  // image without features, is allowed: it scores 0 against every query). IVF-PQ trains on these
+  // rows and needs at least 256 of them (8-bit product quantizer codes). Throws on non-finite
+  // values or a dimension that pq_subquantizers does not divide.
+  static GlobalIndex Build(
+      const Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>& descriptors,
+      const GlobalIndexOptions& options = {});
 
   int dimension() const;
   size_t size() const;
-  // The k best database images, best first (fewer when the index holds fewer). Thread-safe.
+  const GlobalIndexOptions& options() const;
+  // The k best database images, best first (fewer when the index holds fewer; IVF-PQ may also
+  // return fewer when the probed cells hold fewer). Thread-safe. Throws when the query's
+  // dimension differs from the index's, the query is not finite, or k < 0.
   std::vector<RetrievalHit> Search(const Eigen::VectorXf& query, int k) const;
 
+  // Binary, versioned: a header, then the FAISS index serialized by FAISS, length-prefixed. Read
+  // validates both and names `source` in every error.
   void Write(std::ostream& stream) const;
   static GlobalIndex Read(std::istream& stream, const std::string& source);
 

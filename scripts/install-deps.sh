@@ -7,7 +7,8 @@ packages=(
   build-essential cmake ninja-build ccache pkg-config git
   libeigen3-dev libopencv-dev libceres-dev libfaiss-dev libtorch-dev
   libzmq3-dev cppzmq-dev libprotobuf-dev protobuf-compiler
-  libhdf5-dev libsqlite3-dev sqlite3 libcli11-dev libspdlog-dev libfmt-dev nlohmann-json3-dev
+  libhdf5-dev libsqlite3-dev sqlite3 libssl-dev libcli11-dev libspdlog-dev libfmt-dev nlohmann-json3-dev
+  libopenblas0-pthread
   libgtest-dev libgmock-dev libbenchmark-dev
   colmap
 )

@@ -1,8 +1,8 @@
 // hscloc: the map builder's and operator's command line. It only parses options and wires the
 // libraries together; every algorithm lives in the layer libraries.
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
 
+#include <CLI/CLI.hpp>
 #include <cstdio>
 #include <functional>
 #include <stdexcept>
@@ -22,19 +22,18 @@ struct PlannedCommand {
 // Subcommands that DESIGN.md plans but whose implementation has not landed yet: they are listed in
 // --help so the shape of the tool is visible, and say so when run.
 constexpr PlannedCommand kPlannedCommands[] = {
-    {"build-map", "Build a map bundle from a COLMAP model and its features"},
     {"train", "Train the hierarchical classification network of a map"},
     {"localize", "Localize a list of queries offline and write a submission file"},
     {"eval", "Evaluate a submission against ground-truth poses"},
     {"serve", "Serve localization requests over ZeroMQ"},
-    {"inspect", "Print a map bundle's manifest and statistics"},
     {"demo", "Run the whole pipeline on an embedded demo map"},
 };
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"hscloc: city-scale visual localization (hierarchical scene coordinate classification)"};
+  CLI::App app{
+      "hscloc: city-scale visual localization (hierarchical scene coordinate classification)"};
   app.require_subcommand(1);
   std::string log_level = "info";
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error or off")
@@ -43,6 +42,8 @@ int main(int argc, char** argv) {
 
   hscloc::CommandRunner run;
   hscloc::AddSynthCommand(app, run);
+  hscloc::AddBuildMapCommand(app, run);
+  hscloc::AddInspectCommand(app, run);
   for (const PlannedCommand& planned : kPlannedCommands) {
     CLI::App* command = app.add_subcommand(planned.name, planned.description);
     command->allow_extras();

@@ -42,8 +42,8 @@ int RunSynth(const SynthArguments& arguments) {
   Timer timer;
   const SyntheticCity city(options);
   std::cerr << fmt::format("laid out {} blocks, {} points, {} database views in {}\n",
-                           city.blocks().size(), city.points().size(),
-                           city.database_views().size(), FormatDuration(timer.ElapsedSeconds()));
+                           city.blocks().size(), city.points().size(), city.database_views().size(),
+                           FormatDuration(timer.ElapsedSeconds()));
   SyntheticCityWriteOptions write_options;
   write_options.num_threads = arguments.num_threads;
   write_options.overwrite = arguments.overwrite;

@@ -55,7 +55,8 @@ void WriteBinary(std::ostream& stream, const T& value) {
 template <typename T>
 void WriteBinaryArray(std::ostream& stream, const T* values, size_t count) {
   static_assert(std::is_trivially_copyable_v<T>);
-  stream.write(reinterpret_cast<const char*>(values), static_cast<std::streamsize>(count * sizeof(T)));
+  stream.write(reinterpret_cast<const char*>(values),
+               static_cast<std::streamsize>(count * sizeof(T)));
 }
 
 }  // namespace hscloc

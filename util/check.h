@@ -30,38 +30,38 @@ template <typename... Args>
 
 }  // namespace hscloc
 
-#define HSCLOC_INTERNAL_FILE_NAME (__builtin_strrchr(__FILE__, '/') ? __builtin_strrchr(__FILE__, '/') + 1 : __FILE__)
+#define HSCLOC_INTERNAL_FILE_NAME \
+  (__builtin_strrchr(__FILE__, '/') ? __builtin_strrchr(__FILE__, '/') + 1 : __FILE__)
 
 // THROW_CHECK(cond): throws std::invalid_argument "file.cc:42: Check failed: cond".
-#define THROW_CHECK(condition)                                                        \
-  do {                                                                                \
-    if (!(condition)) {                                                               \
-      ::hscloc::internal::ThrowCheckFailure(HSCLOC_INTERNAL_FILE_NAME, __LINE__,       \
-                                            "Check failed: " #condition);             \
-    }                                                                                 \
+#define THROW_CHECK(condition)                                                   \
+  do {                                                                           \
+    if (!(condition)) {                                                          \
+      ::hscloc::internal::ThrowCheckFailure(HSCLOC_INTERNAL_FILE_NAME, __LINE__, \
+                                            "Check failed: " #condition);        \
+    }                                                                            \
   } while (false)
 
 // THROW_CHECK_MSG(cond, "format {}", args...): as THROW_CHECK, followed by the formatted message.
-#define THROW_CHECK_MSG(condition, ...)                                                     \
-  do {                                                                                      \
-    if (!(condition)) {                                                                     \
-      ::hscloc::internal::ThrowCheckFailure(                                                \
-          HSCLOC_INTERNAL_FILE_NAME, __LINE__,                                              \
-          std::string("Check failed: " #condition ": ") + ::fmt::format(__VA_ARGS__));      \
-    }                                                                                       \
+#define THROW_CHECK_MSG(condition, ...)                                                \
+  do {                                                                                 \
+    if (!(condition)) {                                                                \
+      ::hscloc::internal::ThrowCheckFailure(                                           \
+          HSCLOC_INTERNAL_FILE_NAME, __LINE__,                                         \
+          std::string("Check failed: " #condition ": ") + ::fmt::format(__VA_ARGS__)); \
+    }                                                                                  \
   } while (false)
 
-#define HSCLOC_INTERNAL_CHECK_OP(a, b, op)                                                  \
-  do {                                                                                      \
-    const auto& hscloc_check_a = (a);                                                       \
-    const auto& hscloc_check_b = (b);                                                       \
-    if (!(hscloc_check_a op hscloc_check_b)) {                                              \
-      ::hscloc::internal::ThrowCheckFailure(                                                \
-          HSCLOC_INTERNAL_FILE_NAME, __LINE__,                                              \
-          "Check failed: " + ::hscloc::internal::FormatComparison(#a " " #op " " #b,        \
-                                                                  hscloc_check_a,           \
-                                                                  hscloc_check_b));         \
-    }                                                                                       \
+#define HSCLOC_INTERNAL_CHECK_OP(a, b, op)                                            \
+  do {                                                                                \
+    const auto& hscloc_check_a = (a);                                                 \
+    const auto& hscloc_check_b = (b);                                                 \
+    if (!(hscloc_check_a op hscloc_check_b)) {                                        \
+      ::hscloc::internal::ThrowCheckFailure(                                          \
+          HSCLOC_INTERNAL_FILE_NAME, __LINE__,                                        \
+          "Check failed: " + ::hscloc::internal::FormatComparison(                    \
+                                 #a " " #op " " #b, hscloc_check_a, hscloc_check_b)); \
+    }                                                                                 \
   } while (false)
 
 #define THROW_CHECK_EQ(a, b) HSCLOC_INTERNAL_CHECK_OP(a, b, ==)

@@ -44,8 +44,7 @@ void ProgressBar::Advance(uint64_t units) {
   const double now_s = timer_.ElapsedSeconds();
   double next_s = next_draw_s_.load(std::memory_order_relaxed);
   // One thread wins the redraw slot; the others return at once instead of queueing on the lock.
-  if (now_s >= next_s &&
-      next_draw_s_.compare_exchange_strong(next_s, now_s + kRedrawIntervalS)) {
+  if (now_s >= next_s && next_draw_s_.compare_exchange_strong(next_s, now_s + kRedrawIntervalS)) {
     Draw(false);
   }
 }

@@ -37,17 +37,17 @@ int RunCommand(const std::string& command, const std::string& log_path = "");
 }  // namespace hscloc::testing
 
 // Binds `variable` to the real data set `subdirectory`, or skips the test saying why.
-#define HSCLOC_REQUIRE_REAL_DATA(variable, subdirectory)                                      \
-  const auto variable##_optional = ::hscloc::testing::RealDataDir(subdirectory);              \
-  if (!variable##_optional) {                                                                 \
-    GTEST_SKIP() << "real data set '" << (subdirectory)                                       \
-                 << "' not found (set the CMake cache variable HSCLOC_DATA_DIR)";              \
-  }                                                                                           \
+#define HSCLOC_REQUIRE_REAL_DATA(variable, subdirectory)                          \
+  const auto variable##_optional = ::hscloc::testing::RealDataDir(subdirectory);  \
+  if (!variable##_optional) {                                                     \
+    GTEST_SKIP() << "real data set '" << (subdirectory)                           \
+                 << "' not found (set the CMake cache variable HSCLOC_DATA_DIR)"; \
+  }                                                                               \
   const std::filesystem::path variable = *variable##_optional
 
-#define HSCLOC_REQUIRE_COLMAP(variable)                                                       \
-  const auto variable##_optional = ::hscloc::testing::ColmapExecutable();                     \
-  if (!variable##_optional) {                                                                 \
-    GTEST_SKIP() << "the colmap binary was not found (apt-get install colmap)";               \
-  }                                                                                           \
+#define HSCLOC_REQUIRE_COLMAP(variable)                                         \
+  const auto variable##_optional = ::hscloc::testing::ColmapExecutable();       \
+  if (!variable##_optional) {                                                   \
+    GTEST_SKIP() << "the colmap binary was not found (apt-get install colmap)"; \
+  }                                                                             \
   const std::string variable = *variable##_optional

@@ -20,8 +20,8 @@ class Timer {
   Clock::time_point start_;
 };
 
-// Adds the elapsed milliseconds of its scope to *accumulated_ms when it ends (also on an exception),
-// so a stage's time is recorded however the stage exits.
+// Adds the elapsed milliseconds of its scope to *accumulated_ms when it ends (also on an
+// exception), so a stage's time is recorded however the stage exits.
 class ScopedTimer {
  public:
   explicit ScopedTimer(double* accumulated_ms) : accumulated_ms_(accumulated_ms) {}
