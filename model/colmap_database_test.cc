@@ -13,17 +13,6 @@ namespace {
 
 using ::testing::HasSubstr;
 
-template <typename F>
-std::string InvalidArgumentMessage(F&& f) {
-  try {
-    f();
-  } catch (const std::invalid_argument& error) {
-    return error.what();
-  }
-  ADD_FAILURE() << "expected std::invalid_argument";
-  return "";
-}
-
 // A writable copy of a real database, edited with the SQLite C API (independent of the reader).
 class DatabaseCopy {
  public:
@@ -145,7 +134,7 @@ TEST(ColmapDatabase, TruncatedKeypointBlobNamesFileImageAndTable) {
   copy.SetBlob("keypoints", 3, 2048, blob);
 
   const auto reader = OpenColmapDatabaseFeatures(copy.path());
-  const std::string message = InvalidArgumentMessage([&] { reader->Read("0002.jpg"); });
+  const std::string message = testing::InvalidArgumentMessage([&] { reader->Read("0002.jpg"); });
   EXPECT_THAT(message, HasSubstr(copy.path().string()));
   EXPECT_THAT(message, HasSubstr("image '0002.jpg' (id 3), table keypoints"));
   EXPECT_THAT(message, HasSubstr("blob of 49142 bytes, expected 49152"));
@@ -160,8 +149,8 @@ TEST(ColmapDatabase, DescriptorRowsDifferingFromKeypointRowsAreReported) {
   blob.resize(2047 * 128);  // consistent on its own, one row short of the keypoints
   copy.SetBlob("descriptors", 2, 2047, blob);
 
-  const std::string message =
-      InvalidArgumentMessage([&] { OpenColmapDatabaseFeatures(copy.path())->Read("0001.jpg"); });
+  const std::string message = testing::InvalidArgumentMessage(
+      [&] { OpenColmapDatabaseFeatures(copy.path())->Read("0001.jpg"); });
   EXPECT_THAT(message, HasSubstr(copy.path().string()));
   EXPECT_THAT(message, HasSubstr("image '0001.jpg'"));
   EXPECT_THAT(message, HasSubstr("2047 descriptor rows for 2048 keypoints"));
@@ -176,9 +165,9 @@ TEST(ColmapDatabase, NonFiniteKeypointIsReported) {
   std::memcpy(blob.data() + (7 * 6 + 1) * sizeof(float), &nan, sizeof(nan));  // keypoint 7, y
   copy.SetBlob("keypoints", 4, static_cast<int64_t>(blob.size() / 24), blob);
 
-  EXPECT_THAT(
-      InvalidArgumentMessage([&] { OpenColmapDatabaseFeatures(copy.path())->Read("03.jpg"); }),
-      HasSubstr("image '03.jpg' (id 4), table keypoints: keypoint 7 is not finite"));
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { OpenColmapDatabaseFeatures(copy.path())->Read("03.jpg"); }),
+              HasSubstr("image '03.jpg' (id 4), table keypoints: keypoint 7 is not finite"));
 }
 
 TEST(ColmapDatabase, MissingImagesAreReported) {
@@ -189,27 +178,29 @@ TEST(ColmapDatabase, MissingImagesAreReported) {
 
   const auto reader = OpenColmapDatabaseFeatures(copy.path());
   EXPECT_FALSE(reader->HasImage("nowhere.jpg"));
-  EXPECT_THAT(InvalidArgumentMessage([&] { reader->Read("nowhere.jpg"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->Read("nowhere.jpg"); }),
               HasSubstr("no image named 'nowhere.jpg'"));
   // 0004.jpg is in the images table without keypoints: no features, and said so.
   EXPECT_FALSE(reader->HasImage("0004.jpg"));
   EXPECT_EQ(reader->ImageNames().size(), 10u);
-  EXPECT_THAT(InvalidArgumentMessage([&] { reader->Read("0004.jpg"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->Read("0004.jpg"); }),
               HasSubstr("image '0004.jpg' (id 5) has no row in table keypoints"));
 }
 
 TEST(ColmapDatabase, FilesThatAreNotColmapDatabasesAreReported) {
   testing::TempDir dir;
-  EXPECT_THAT(InvalidArgumentMessage([&] { OpenColmapDatabaseFeatures(dir / "absent.db"); }),
-              HasSubstr("does not exist"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { OpenColmapDatabaseFeatures(dir / "absent.db"); }),
+      HasSubstr("does not exist"));
 
   sqlite3* db = nullptr;
   ASSERT_EQ(sqlite3_open((dir / "other.db").c_str(), &db), SQLITE_OK);
   sqlite3_exec(db, "CREATE TABLE images (image_id INTEGER, name TEXT, camera_id INTEGER)", nullptr,
                nullptr, nullptr);
   sqlite3_close(db);
-  EXPECT_THAT(InvalidArgumentMessage([&] { OpenColmapDatabaseFeatures(dir / "other.db"); }),
-              HasSubstr("has no table 'keypoints'"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { OpenColmapDatabaseFeatures(dir / "other.db"); }),
+      HasSubstr("has no table 'keypoints'"));
 }
 
 }  // namespace

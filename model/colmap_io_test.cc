@@ -196,18 +196,6 @@ Map ReadFromString(Map (*read)(std::istream&, const std::string&), const std::st
   return read(stream, source);
 }
 
-// The message of the std::invalid_argument that `function` throws.
-template <typename Function>
-std::string ErrorOf(Function&& function) {
-  try {
-    function();
-  } catch (const std::invalid_argument& error) {
-    return error.what();
-  }
-  ADD_FAILURE() << "no std::invalid_argument thrown";
-  return "";
-}
-
 std::string ReadFile(const fs::path& path) {
   std::ifstream file(path, std::ios::binary);
   return std::string(std::istreambuf_iterator<char>(file), {});
@@ -323,20 +311,23 @@ TEST(ColmapIo, WritersRejectNamesTheyCannotHold) {
     images[1].image_id = 1;
     images[1].name = name;
     std::ostringstream stream;
-    EXPECT_THAT(ErrorOf([&] { WriteImagesText(stream, images); }), HasSubstr("image 1"));
+    EXPECT_THAT(testing::InvalidArgumentMessage([&] { WriteImagesText(stream, images); }),
+                HasSubstr("image 1"));
     EXPECT_TRUE(stream.str().empty());
   }
   std::map<image_t, Image> images;
   images[1].name = std::string("a\0b", 3);
   std::ostringstream stream;
-  EXPECT_THAT(ErrorOf([&] { WriteImagesBinary(stream, images); }), HasSubstr("NUL"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { WriteImagesBinary(stream, images); }),
+              HasSubstr("NUL"));
 }
 
 TEST(ColmapIo, NonUnitQuaternionIsNormalizedAsColmapDoes) {
   const std::string text = "1 0.5 0.5 0.5 0.5000001 0 0 0 1 a.jpg\n\n";
   const auto images = ReadFromString(&ReadImagesText, text, "images.txt");
   EXPECT_NEAR(images.at(1).cam_from_world.rotation.norm(), 1, 1e-15);
-  EXPECT_THAT(ErrorOf([] { ReadFromString(&ReadImagesText, "1 0 0 0 0 0 0 0 1 a.jpg\n\n", "i"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [] { ReadFromString(&ReadImagesText, "1 0 0 0 0 0 0 0 1 a.jpg\n\n", "i"); }),
               HasSubstr("quaternion"));
 }
 
@@ -347,20 +338,20 @@ TEST(ColmapIoBadInput, EveryTruncationOfABinaryFileFails) {
   const std::string images = WriteToString(&WriteImagesBinary, reconstruction.images);
   const std::string points3D = WriteToString(&WritePoints3DBinary, reconstruction.points3D);
   for (size_t size = 0; size < cameras.size(); ++size) {
-    const std::string message =
-        ErrorOf([&] { ReadFromString(&ReadCamerasBinary, cameras.substr(0, size), "c.bin"); });
+    const std::string message = testing::InvalidArgumentMessage(
+        [&] { ReadFromString(&ReadCamerasBinary, cameras.substr(0, size), "c.bin"); });
     ASSERT_THAT(message, HasSubstr("c.bin")) << size;
     ASSERT_THAT(message, HasSubstr("truncated")) << size;
   }
   for (size_t size = 0; size < images.size(); size += 7) {
-    const std::string message =
-        ErrorOf([&] { ReadFromString(&ReadImagesBinary, images.substr(0, size), "i.bin"); });
+    const std::string message = testing::InvalidArgumentMessage(
+        [&] { ReadFromString(&ReadImagesBinary, images.substr(0, size), "i.bin"); });
     ASSERT_THAT(message, HasSubstr("i.bin")) << size;
     ASSERT_THAT(message, HasSubstr("truncated")) << size;
   }
   for (size_t size = 0; size < points3D.size(); size += 3) {
-    const std::string message =
-        ErrorOf([&] { ReadFromString(&ReadPoints3DBinary, points3D.substr(0, size), "p.bin"); });
+    const std::string message = testing::InvalidArgumentMessage(
+        [&] { ReadFromString(&ReadPoints3DBinary, points3D.substr(0, size), "p.bin"); });
     ASSERT_THAT(message, HasSubstr("p.bin")) << size;
     ASSERT_THAT(message, HasSubstr("truncated")) << size;
   }
@@ -371,7 +362,8 @@ TEST(ColmapIoBadInput, TextCutAtALineFailsOnTheHeaderCount) {
   const Reconstruction reconstruction = RandomReconstruction(7);
   std::string points3D = WriteToString(&WritePoints3DText, reconstruction.points3D);
   points3D.resize(points3D.rfind('\n', points3D.size() - 2) + 1);
-  EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadPoints3DText, points3D, "points3D.txt"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { ReadFromString(&ReadPoints3DText, points3D, "points3D.txt"); }),
               HasSubstr("points3D.txt: the header declares 80 points3D, the file holds 79"));
 }
 
@@ -393,22 +385,26 @@ TEST(ColmapIoBadInput, AbsurdCountsFailWithoutAllocatingForThem) {
   const uint64_t absurd = uint64_t{1} << 60;
   std::string bad_count = images;
   std::memcpy(bad_count.data(), &absurd, 8);
-  EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadImagesBinary, bad_count, "images.bin"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { ReadFromString(&ReadImagesBinary, bad_count, "images.bin"); }),
               HasSubstr("images.bin: header: 1152921504606846976 images declared"));
   // The first image has no 2D points: its count follows the header, id, pose, camera and name.
   const Image& first = reconstruction.images.begin()->second;
   ASSERT_TRUE(first.points2D.empty());
   const size_t offset = 8 + 4 + 7 * 8 + 4 + first.name.size() + 1;
   std::memcpy(images.data() + offset, &absurd, 8);
-  EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadImagesBinary, images, "images.bin"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { ReadFromString(&ReadImagesBinary, images, "images.bin"); }),
               HasSubstr(fmt::format("images.bin: image {} (name '{}'): {} points2D declared",
                                     first.image_id, first.name, absurd)));
   std::memcpy(points3D.data() + 8 + 8 + 3 * 8 + 3 + 8, &absurd, 8);
-  EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadPoints3DBinary, points3D, "points3D.bin"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { ReadFromString(&ReadPoints3DBinary, points3D, "points3D.bin"); }),
               HasSubstr("track elements declared"));
   UnseekableBuffer pipe(images);
   std::istream pipe_stream(&pipe);
-  EXPECT_THAT(ErrorOf([&] { ReadImagesBinary(pipe_stream, "pipe"); }), HasSubstr("pipe: image"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { ReadImagesBinary(pipe_stream, "pipe"); }),
+              HasSubstr("pipe: image"));
 }
 
 TEST(ColmapIoBadInput, UnknownCameraModelIdFails) {
@@ -416,7 +412,8 @@ TEST(ColmapIoBadInput, UnknownCameraModelIdFails) {
   std::string cameras = WriteToString(&WriteCamerasBinary, reconstruction.cameras);
   const int32_t model_id = 99;
   std::memcpy(cameras.data() + 8 + 4, &model_id, 4);
-  EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadCamerasBinary, cameras, "cameras.bin"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { ReadFromString(&ReadCamerasBinary, cameras, "cameras.bin"); }),
               HasSubstr(fmt::format("cameras.bin: camera {}: unknown camera model id 99",
                                     reconstruction.cameras.begin()->first)));
 }
@@ -424,7 +421,8 @@ TEST(ColmapIoBadInput, UnknownCameraModelIdFails) {
 TEST(ColmapIoBadInput, BytesAfterTheLastRecordFail) {
   const Reconstruction reconstruction = RandomReconstruction(10);
   const std::string points3D = WriteToString(&WritePoints3DBinary, reconstruction.points3D);
-  EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadPoints3DBinary, points3D + "xy", "p.bin"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { ReadFromString(&ReadPoints3DBinary, points3D + "xy", "p.bin"); }),
               HasSubstr("p.bin: 2 bytes of unexpected data after the 80 points3D"));
 }
 
@@ -435,10 +433,12 @@ TEST(ColmapIoBadInput, DuplicateIdsFail) {
   const uint64_t two = 2;
   binary =
       std::string(reinterpret_cast<const char*>(&two), 8) + binary.substr(8) + binary.substr(8);
-  EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadCamerasBinary, binary, "cameras.bin"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { ReadFromString(&ReadCamerasBinary, binary, "cameras.bin"); }),
               HasSubstr("duplicate camera id 3"));
   const std::string text = "3 SIMPLE_PINHOLE 640 480 500 320 240\n3 PINHOLE 64 48 5 5 3 2\n";
-  EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadCamerasText, text, "cameras.txt"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { ReadFromString(&ReadCamerasText, text, "cameras.txt"); }),
               HasSubstr("cameras.txt:2: camera 3: duplicate camera id 3"));
 }
 
@@ -451,7 +451,8 @@ TEST(ColmapIoBadInput, MalformedTextFailsNamingFileLineAndField) {
       {"1 PINHOLE 640\n", "found 3 fields"},
   };
   for (const auto& [text, expected] : bad_cameras) {
-    EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadCamerasText, text, "cameras.txt"); }),
+    EXPECT_THAT(testing::InvalidArgumentMessage(
+                    [&] { ReadFromString(&ReadCamerasText, text, "cameras.txt"); }),
                 HasSubstr(expected));
   }
   const std::vector<std::pair<std::string, std::string>> bad_images = {
@@ -462,7 +463,8 @@ TEST(ColmapIoBadInput, MalformedTextFailsNamingFileLineAndField) {
       {"1 1 0 0 0 0 0 0 1 a.jpg\n\n1 1 0 0 0 0 0 0 1 b.jpg\n\n", "duplicate image id 1"},
   };
   for (const auto& [text, expected] : bad_images) {
-    EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadImagesText, text, "images.txt"); }),
+    EXPECT_THAT(testing::InvalidArgumentMessage(
+                    [&] { ReadFromString(&ReadImagesText, text, "images.txt"); }),
                 HasSubstr(expected));
   }
   const std::vector<std::pair<std::string, std::string>> bad_points3D = {
@@ -471,20 +473,23 @@ TEST(ColmapIoBadInput, MalformedTextFailsNamingFileLineAndField) {
       {"7 1 2 3 0 0 0 1e99999 1 0\n", "ERROR (field 8)"},
   };
   for (const auto& [text, expected] : bad_points3D) {
-    EXPECT_THAT(ErrorOf([&] { ReadFromString(&ReadPoints3DText, text, "points3D.txt"); }),
+    EXPECT_THAT(testing::InvalidArgumentMessage(
+                    [&] { ReadFromString(&ReadPoints3DText, text, "points3D.txt"); }),
                 HasSubstr(expected));
   }
 }
 
 TEST(ColmapIoBadInput, MissingFilesAreNamed) {
   const testing::TempDir temp;
-  EXPECT_THAT(ErrorOf([&] { ReadColmapModel(temp / "nowhere"); }), HasSubstr("not a directory"));
-  const std::string message = ErrorOf([&] { ReadColmapModel(temp.path()); });
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { ReadColmapModel(temp / "nowhere"); }),
+              HasSubstr("not a directory"));
+  const std::string message =
+      testing::InvalidArgumentMessage([&] { ReadColmapModel(temp.path()); });
   EXPECT_THAT(message, HasSubstr("cameras.bin, images.bin, points3D.bin"));
   EXPECT_THAT(message, HasSubstr("cameras.txt, images.txt, points3D.txt"));
   WriteColmapModel(RandomReconstruction(11), temp.path(), ColmapFormat::kBinary);
   fs::remove(temp / "images.bin");
-  EXPECT_THAT(ErrorOf([&] { ReadColmapModel(temp.path()); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { ReadColmapModel(temp.path()); }),
               HasSubstr("binary lacks images.bin, text lacks cameras.txt"));
 }
 
@@ -494,7 +499,7 @@ TEST(ColmapIoBadInput, InconsistentModelFailsNamingTheDirectory) {
   auto& point3D = reconstruction.points3D.begin()->second;
   point3D.track.push_back({999999, 0});
   WriteColmapModel(reconstruction, temp.path(), ColmapFormat::kBinary);
-  EXPECT_THAT(ErrorOf([&] { ReadColmapModel(temp.path()); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { ReadColmapModel(temp.path()); }),
               HasSubstr(fmt::format("COLMAP model '{}': point3D {}: track names image 999999",
                                     temp.path().string(), reconstruction.points3D.begin()->first)));
 }
@@ -608,7 +613,8 @@ TEST_P(ColmapIoRealData, TruncatedFilesFailNamingTheFile) {
         WriteFile(temp / "cut" / other_name,
                   other_name == name ? bytes.substr(0, size) : ReadFile(dir / other_name));
       }
-      const std::string message = ErrorOf([&] { ReadColmapModel(temp / "cut"); });
+      const std::string message =
+          testing::InvalidArgumentMessage([&] { ReadColmapModel(temp / "cut"); });
       EXPECT_THAT(message, HasSubstr((temp / "cut" / name).string())) << size;
       if (binary) {
         EXPECT_THAT(message, HasSubstr("truncated")) << size;

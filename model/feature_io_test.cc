@@ -16,17 +16,6 @@ namespace {
 
 using ::testing::HasSubstr;
 
-template <typename F>
-std::string InvalidArgumentMessage(F&& f) {
-  try {
-    f();
-  } catch (const std::invalid_argument& error) {
-    return error.what();
-  }
-  ADD_FAILURE() << "expected std::invalid_argument";
-  return "";
-}
-
 ImageFeatures RandomFeatures(int num_keypoints, int dimension, std::mt19937* random) {
   std::uniform_real_distribution<float> coordinate(0.5f, 639.5f), value(0.f, 1.f);
   ImageFeatures features;
@@ -92,7 +81,7 @@ TEST_F(SyntheticJoin, KeypointFartherThanTheToleranceIsReported) {
   reconstruction_.images[7].points2D[19].xy.x() += 0.01;
   const auto features = OpenH5Features(dir_ / "features.h5");
   const std::string message =
-      InvalidArgumentMessage([&] { JoinObservations(reconstruction_, *features); });
+      testing::InvalidArgumentMessage([&] { JoinObservations(reconstruction_, *features); });
   EXPECT_THAT(message, HasSubstr("image 'a.jpg' (id 7), 2D point 19 (3D point 102)"));
   EXPECT_THAT(message, HasSubstr("max_keypoint_mismatch_px is 0.001"));
 
@@ -104,7 +93,7 @@ TEST_F(SyntheticJoin, KeypointFartherThanTheToleranceIsReported) {
 TEST_F(SyntheticJoin, PointIndexBeyondTheKeypointsIsReported) {
   reconstruction_.images[2].points2D.resize(14);
   reconstruction_.images[2].points2D[13].point3D_id = 104;
-  EXPECT_THAT(InvalidArgumentMessage([&] {
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
                 JoinObservations(reconstruction_, *OpenH5Features(dir_ / "features.h5"));
               }),
               HasSubstr("image 'sub/b.jpg' (id 2), 2D point 13 (3D point 104): only 12 keypoints"));
@@ -112,7 +101,7 @@ TEST_F(SyntheticJoin, PointIndexBeyondTheKeypointsIsReported) {
 
 TEST_F(SyntheticJoin, ImageWithoutFeaturesIsReported) {
   reconstruction_.images[9] = ImageOn(9, "c.jpg", features_a_, {{0, 100}});
-  const std::string message = InvalidArgumentMessage(
+  const std::string message = testing::InvalidArgumentMessage(
       [&] { JoinObservations(reconstruction_, *OpenH5Features(dir_ / "features.h5")); });
   EXPECT_THAT(message, HasSubstr((dir_ / "features.h5").string()));
   EXPECT_THAT(message, HasSubstr("image 'c.jpg' (id 9) of the reconstruction has no features"));
@@ -129,7 +118,7 @@ TEST_F(SyntheticJoin, DescriptorDimensionMismatchNamesBothImages) {
 
   JoinOptions options;
   options.max_keypoint_mismatch_px = 0.0;  // keypoints stay float32 in a float16 file
-  const std::string message = InvalidArgumentMessage(
+  const std::string message = testing::InvalidArgumentMessage(
       [&] { JoinObservations(reconstruction_, *OpenH5Features(dir_ / "mixed.h5"), options); });
   EXPECT_THAT(message, HasSubstr("descriptor dimension 8 of image 'a.jpg' differs from 16 of image "
                                  "'sub/b.jpg'"));
@@ -141,7 +130,7 @@ TEST(JoinOptions, CheckRejectsNegativeAndNonFiniteTolerances) {
   for (const double bad :
        {-1e-3, std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
     options.max_keypoint_mismatch_px = bad;
-    EXPECT_THAT(InvalidArgumentMessage([&] { options.Check(); }),
+    EXPECT_THAT(testing::InvalidArgumentMessage([&] { options.Check(); }),
                 HasSubstr("max_keypoint_mismatch_px"));
   }
 }
@@ -159,14 +148,14 @@ TEST(OpenFeatureReader, DispatchesOnTheExtension) {
   // An hloc file renamed .db goes to the database reader, which refuses it.
   std::filesystem::copy_file(dir / "features.h5", dir / "features.db");
   const std::string message =
-      InvalidArgumentMessage([&] { OpenFeatureReader(dir / "features.db"); });
+      testing::InvalidArgumentMessage([&] { OpenFeatureReader(dir / "features.db"); });
   EXPECT_THAT(message, HasSubstr((dir / "features.db").string()));
   EXPECT_THAT(message, HasSubstr("not an SQLite database"));
 }
 
 TEST(OpenFeatureReader, UnknownExtensionListsTheAcceptedOnes) {
   for (const char* name : {"features.txt", "features"}) {
-    const std::string message = InvalidArgumentMessage([&] { OpenFeatureReader(name); });
+    const std::string message = testing::InvalidArgumentMessage([&] { OpenFeatureReader(name); });
     EXPECT_THAT(message, HasSubstr(name));
     EXPECT_THAT(message, HasSubstr(".db"));
     EXPECT_THAT(message, HasSubstr(".h5"));

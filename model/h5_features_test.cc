@@ -16,17 +16,6 @@ namespace {
 using ::testing::HasSubstr;
 
 // The message of the std::invalid_argument that `f` throws; a failure when it throws none.
-template <typename F>
-std::string InvalidArgumentMessage(F&& f) {
-  try {
-    f();
-  } catch (const std::invalid_argument& error) {
-    return error.what();
-  }
-  ADD_FAILURE() << "expected std::invalid_argument";
-  return "";
-}
-
 // Keypoints lie inside a 1536 x 1024 image, where shifting by 0.5 px and back is exact in float.
 ImageFeatures RandomFeatures(int num_keypoints, int dimension, bool with_scores,
                              std::mt19937* random) {
@@ -216,7 +205,7 @@ TEST(H5Features, Float16StoresEveryHalfExactlyAndRoundsToNearest) {
   writer.Write("all", features, 1, 1);
   ImageFeatures too_large = features;
   too_large.descriptors(5, 1) = 65520.f;
-  EXPECT_THAT(InvalidArgumentMessage([&] { writer.Write("too_large", too_large, 1, 1); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { writer.Write("too_large", too_large, 1, 1); }),
               HasSubstr("65520"));
   writer.Close();
 
@@ -282,7 +271,7 @@ TEST(H5Features, GlobalDescriptorsOfDifferentDimensionsAreRejected) {
   testing::TempDir dir;
   const std::unordered_map<std::string, Eigen::VectorXf> descriptors = {
       {"a.jpg", Eigen::VectorXf::Ones(8)}, {"b.jpg", Eigen::VectorXf::Ones(9)}};
-  const std::string message = InvalidArgumentMessage([&] {
+  const std::string message = testing::InvalidArgumentMessage([&] {
     WriteH5GlobalDescriptors(dir / "global.h5", descriptors, H5FloatPrecision::kFloat32);
   });
   EXPECT_THAT(message, HasSubstr("b.jpg"));
@@ -295,19 +284,22 @@ TEST(H5Features, WriterRejectsDuplicatesAndInconsistentFeatures) {
   H5FeatureWriter writer(dir / "f.h5", H5FloatPrecision::kFloat32);
   const ImageFeatures features = RandomFeatures(10, 32, true, &random);
   writer.Write("a.jpg", features, 640, 480);
-  EXPECT_THAT(InvalidArgumentMessage([&] { writer.Write("a.jpg", features, 640, 480); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { writer.Write("a.jpg", features, 640, 480); }),
               HasSubstr("written before"));
 
   ImageFeatures short_scores = features;
   short_scores.scores.conservativeResize(9);
-  EXPECT_THAT(InvalidArgumentMessage([&] { writer.Write("b.jpg", short_scores, 640, 480); }),
-              HasSubstr("9 scores for 10 keypoints"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { writer.Write("b.jpg", short_scores, 640, 480); }),
+      HasSubstr("9 scores for 10 keypoints"));
   ImageFeatures nan_descriptor = features;
   nan_descriptor.descriptors(3, 4) = std::numeric_limits<float>::quiet_NaN();
-  EXPECT_THAT(InvalidArgumentMessage([&] { writer.Write("c.jpg", nan_descriptor, 640, 480); }),
-              HasSubstr("descriptor value nan is not finite"));
-  EXPECT_THAT(InvalidArgumentMessage([&] { writer.Write("d//e.jpg", features, 640, 480); }),
-              HasSubstr("d//e.jpg"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { writer.Write("c.jpg", nan_descriptor, 640, 480); }),
+      HasSubstr("descriptor value nan is not finite"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { writer.Write("d//e.jpg", features, 640, 480); }),
+      HasSubstr("d//e.jpg"));
 }
 
 TEST(H5Features, NanDescriptorIsReportedWithFileAndImage) {
@@ -319,7 +311,7 @@ TEST(H5Features, NanDescriptorIsReportedWithFileAndImage) {
     raw.Dataset(group, "descriptors", {2, 2}, {0.f, 1.f, std::nanf(""), 0.f});
   }
   const auto reader = OpenH5Features(dir / "nan.h5");
-  const std::string message = InvalidArgumentMessage([&] { reader->Read("img.jpg"); });
+  const std::string message = testing::InvalidArgumentMessage([&] { reader->Read("img.jpg"); });
   EXPECT_THAT(message, HasSubstr((dir / "nan.h5").string()));
   EXPECT_THAT(message, HasSubstr("img.jpg"));
   EXPECT_THAT(message, HasSubstr("descriptor of keypoint 0 is not finite (dimension 1)"));
@@ -339,13 +331,13 @@ TEST(H5Features, MalformedShapesAreReported) {
     raw.Dataset(no_descriptors, "keypoints", {1, 2}, {1, 1});
   }
   const auto reader = OpenH5Features(dir / "bad.h5");
-  EXPECT_THAT(InvalidArgumentMessage([&] { reader->Read("three_columns.jpg"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->Read("three_columns.jpg"); }),
               HasSubstr("'three_columns.jpg', dataset keypoints: shape 2 x 3, expected N x 2"));
-  EXPECT_THAT(InvalidArgumentMessage([&] { reader->Read("too_few_descriptors.jpg"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->Read("too_few_descriptors.jpg"); }),
               HasSubstr("shape 4 x 1, expected D x 2"));
-  EXPECT_THAT(InvalidArgumentMessage([&] { reader->Read("no_descriptors.jpg"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->Read("no_descriptors.jpg"); }),
               HasSubstr("dataset descriptors: missing"));
-  EXPECT_THAT(InvalidArgumentMessage([&] { reader->Read("absent.jpg"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->Read("absent.jpg"); }),
               HasSubstr("no image 'absent.jpg'"));
 }
 
@@ -364,7 +356,7 @@ TEST(H5Features, TruncatedFileIsAnErrorNotACrash) {
   ASSERT_GT(bytes.size(), 1000000u);
   std::ofstream(dir / "half.h5", std::ios::binary).write(bytes.data(), bytes.size() / 2);
 
-  const std::string message = InvalidArgumentMessage([&] {
+  const std::string message = testing::InvalidArgumentMessage([&] {
     const auto reader = OpenH5Features(dir / "half.h5");
     for (const std::string& name : reader->ImageNames()) reader->Read(name);
   });
@@ -373,12 +365,12 @@ TEST(H5Features, TruncatedFileIsAnErrorNotACrash) {
 
 TEST(H5Features, MissingAndNonHdf5FilesAreReported) {
   testing::TempDir dir;
-  EXPECT_THAT(InvalidArgumentMessage([&] { OpenH5Features(dir / "absent.h5"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { OpenH5Features(dir / "absent.h5"); }),
               HasSubstr("does not exist"));
   std::ofstream(dir / "text.h5") << "not an HDF5 file\n";
-  EXPECT_THAT(InvalidArgumentMessage([&] { OpenH5Features(dir / "text.h5"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { OpenH5Features(dir / "text.h5"); }),
               HasSubstr((dir / "text.h5").string()));
-  EXPECT_THAT(InvalidArgumentMessage([&] { ReadH5GlobalDescriptors(dir / "text.h5"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { ReadH5GlobalDescriptors(dir / "text.h5"); }),
               HasSubstr((dir / "text.h5").string()));
 }
 

@@ -25,9 +25,6 @@ constexpr uint32_t kMagic = 0x54435348;  // "HSCT"
 constexpr uint32_t kVersion = 1;
 constexpr int kMaxLevels = 255;  // node levels are stored as bytes
 constexpr int kMaxBranching = 256;
-// Arrays are read in chunks so that a corrupt count fails on the missing bytes instead of
-// allocating whatever the count asks for.
-constexpr size_t kReadChunkElements = size_t{1} << 20;
 // k-means trains on at most this many points per cluster (FAISS's default of 256 suits
 // high-dimensional data). On the Aachen-sized synthetic city, 64 instead of 256 makes the level-1
 // splits 2.8 times faster for a 2 % larger RMS distance of points to their centroid.
@@ -280,18 +277,6 @@ class Labeler {
   ProgressBar& progress_;
 };
 
-template <typename T>
-std::vector<T> ReadArray(std::istream& stream, uint64_t count, const std::string& what) {
-  std::vector<T> values;
-  for (uint64_t done = 0; done < count;) {
-    const size_t chunk = static_cast<size_t>(std::min<uint64_t>(count - done, kReadChunkElements));
-    values.resize(done + chunk);
-    ReadBinaryArray(stream, values.data() + done, chunk, what);
-    done += chunk;
-  }
-  return values;
-}
-
 }  // namespace
 
 void LabelTreeOptions::Check() const {
@@ -467,18 +452,19 @@ LabelTree LabelTree::Read(std::istream& stream, const std::string& source) {
     ThrowInvalidArgument("{}: {} points cannot fit {} levels with branching {}", source, num_points,
                          levels, branching);
   }
-  tree.labels_ = ReadArray<Label>(stream, num_points * levels, source + ": labels");
+  tree.labels_ = ReadBinaryVector<Label>(stream, num_points * levels, source + ": labels");
   const auto num_nodes = ReadBinary<uint64_t>(stream, source + ": node count");
   // Every node but the root lies on the path of at least one point.
   if (num_nodes < 1 || num_nodes > 1 + num_points * levels) {
     ThrowInvalidArgument("{}: {} nodes for {} points and {} levels", source, num_nodes, num_points,
                          levels);
   }
-  tree.node_level_ = ReadArray<uint8_t>(stream, num_nodes, source + ": node levels");
-  tree.first_child_ = ReadArray<uint32_t>(stream, num_nodes, source + ": first children");
-  tree.num_children_ = ReadArray<uint32_t>(stream, num_nodes, source + ": child counts");
-  tree.leaf_point_ = ReadArray<int64_t>(stream, num_nodes, source + ": leaf points");
-  const std::vector<float> centers = ReadArray<float>(stream, 3 * num_nodes, source + ": centres");
+  tree.node_level_ = ReadBinaryVector<uint8_t>(stream, num_nodes, source + ": node levels");
+  tree.first_child_ = ReadBinaryVector<uint32_t>(stream, num_nodes, source + ": first children");
+  tree.num_children_ = ReadBinaryVector<uint32_t>(stream, num_nodes, source + ": child counts");
+  tree.leaf_point_ = ReadBinaryVector<int64_t>(stream, num_nodes, source + ": leaf points");
+  const std::vector<float> centers =
+      ReadBinaryVector<float>(stream, 3 * num_nodes, source + ": centres");
   tree.centers_.resize(num_nodes);
   for (size_t node = 0; node < num_nodes; ++node) {
     tree.centers_[node] =

@@ -15,6 +15,7 @@
 
 #include "model/synthetic_city.h"
 #include "util/random.h"
+#include "util/testing.h"
 
 namespace hscloc {
 namespace {
@@ -38,15 +39,6 @@ std::vector<Eigen::Vector3d> RandomPoints(size_t count, uint64_t seed) {
         Eigen::Vector3d(random.Uniform(-100, 100), random.Uniform(-50, 50), random.Uniform(0, 20));
   }
   return points;
-}
-
-std::string ErrorOf(const std::function<void()>& body) {
-  try {
-    body();
-  } catch (const std::invalid_argument& error) {
-    return error.what();
-  }
-  return "";
 }
 
 // Checks every structural promise of the header against the points the tree was built on.
@@ -128,12 +120,16 @@ std::vector<LabelTree::Label> PathThroughMissingChild(const LabelTree& tree) {
 }
 
 TEST(LabelTreeOptions, CheckNamesTheField) {
-  EXPECT_THAT(ErrorOf([] { QuietOptions(0, 10).Check(); }), HasSubstr("levels"));
-  EXPECT_THAT(ErrorOf([] { QuietOptions(3, 1).Check(); }), HasSubstr("branching"));
-  EXPECT_THAT(ErrorOf([] { QuietOptions(3, 257).Check(); }), HasSubstr("branching"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([] { QuietOptions(0, 10).Check(); }),
+              HasSubstr("levels"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([] { QuietOptions(3, 1).Check(); }),
+              HasSubstr("branching"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([] { QuietOptions(3, 257).Check(); }),
+              HasSubstr("branching"));
   LabelTreeOptions options = QuietOptions(3, 10);
   options.kmeans_iterations = 0;
-  EXPECT_THAT(ErrorOf([&] { options.Check(); }), HasSubstr("kmeans_iterations"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { options.Check(); }),
+              HasSubstr("kmeans_iterations"));
   EXPECT_NO_THROW(QuietOptions(4, 256).Check());
 }
 
@@ -242,19 +238,22 @@ TEST(LabelTree, ExactlyFullTreeUsesEveryChild) {
 
 TEST(LabelTree, TooManyPointsThrow) {
   const std::vector<Eigen::Vector3d> points = RandomPoints(1001, 7);
-  EXPECT_THAT(ErrorOf([&] { LabelTree::Build(points, QuietOptions(3, 10)); }),
-              HasSubstr("1001 points"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { LabelTree::Build(points, QuietOptions(3, 10)); }),
+      HasSubstr("1001 points"));
 }
 
 TEST(LabelTree, NonFinitePointsThrowNamingThePoint) {
   std::vector<Eigen::Vector3d> points = RandomPoints(50, 3);
   points[17].y() = std::nan("");
-  EXPECT_THAT(ErrorOf([&] { LabelTree::Build(points, QuietOptions(3, 10)); }),
-              HasSubstr("point 17"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { LabelTree::Build(points, QuietOptions(3, 10)); }),
+      HasSubstr("point 17"));
   points[17].y() = 0;
   points[23].z() = std::numeric_limits<double>::infinity();
-  EXPECT_THAT(ErrorOf([&] { LabelTree::Build(points, QuietOptions(3, 10)); }),
-              HasSubstr("point 23"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { LabelTree::Build(points, QuietOptions(3, 10)); }),
+      HasSubstr("point 23"));
 }
 
 TEST(LabelTree, OnePointAndNoPoints) {
@@ -334,7 +333,8 @@ TEST(LabelTree, TruncatedOrCorruptDataThrowsNamingTheSource) {
   for (const size_t length :
        {size_t{0}, size_t{3}, size_t{10}, size_t{30}, bytes.size() / 2, bytes.size() - 1}) {
     std::istringstream truncated(bytes.substr(0, length));
-    EXPECT_THAT(ErrorOf([&] { LabelTree::Read(truncated, "tree.bin"); }), HasSubstr("tree.bin"))
+    EXPECT_THAT(testing::InvalidArgumentMessage([&] { LabelTree::Read(truncated, "tree.bin"); }),
+                HasSubstr("tree.bin"))
         << "truncated to " << length << " bytes";
   }
 
@@ -343,14 +343,16 @@ TEST(LabelTree, TruncatedOrCorruptDataThrowsNamingTheSource) {
   std::string bad_label = bytes;
   bad_label[kFirstLabel] = static_cast<char>(200);
   std::istringstream bad_label_stream(bad_label);
-  EXPECT_THAT(ErrorOf([&] { LabelTree::Read(bad_label_stream, "tree.bin"); }),
-              HasSubstr("tree.bin: the labels of point 0"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { LabelTree::Read(bad_label_stream, "tree.bin"); }),
+      HasSubstr("tree.bin: the labels of point 0"));
 
   std::string bad_magic = bytes;
   bad_magic[0] = 'X';
   std::istringstream bad_magic_stream(bad_magic);
-  EXPECT_THAT(ErrorOf([&] { LabelTree::Read(bad_magic_stream, "tree.bin"); }),
-              HasSubstr("tree.bin: not an hscloc label tree"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { LabelTree::Read(bad_magic_stream, "tree.bin"); }),
+      HasSubstr("tree.bin: not an hscloc label tree"));
 
   // A child count that points past the node array.
   const size_t num_nodes = tree.NumNodes();
@@ -358,8 +360,9 @@ TEST(LabelTree, TruncatedOrCorruptDataThrowsNamingTheSource) {
   std::string bad_count = bytes;
   bad_count[num_children_offset] = static_cast<char>(255);
   std::istringstream bad_count_stream(bad_count);
-  EXPECT_THAT(ErrorOf([&] { LabelTree::Read(bad_count_stream, "tree.bin"); }),
-              HasSubstr("tree.bin: node 0"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { LabelTree::Read(bad_count_stream, "tree.bin"); }),
+      HasSubstr("tree.bin: node 0"));
 }
 
 // An Aachen-sized tree (1.5 M points, the default 4 levels and branching 100), for measuring the

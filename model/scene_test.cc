@@ -8,20 +8,13 @@
 #include <utility>
 #include <vector>
 
+#include "util/testing.h"
+
 namespace hscloc {
 namespace {
 
 using ::testing::ElementsAre;
 using ::testing::HasSubstr;
-
-std::string ErrorOf(const std::function<void()>& body) {
-  try {
-    body();
-  } catch (const std::invalid_argument& error) {
-    return error.what();
-  }
-  return "";
-}
 
 // Three images and three points, inserted with ids out of order; every image sees two points.
 Reconstruction MakeReconstruction() {
@@ -89,8 +82,10 @@ TEST(Scene, IndexLookups) {
   EXPECT_EQ(scene.ImageIndex(12), 2u);
   EXPECT_EQ(scene.PointIndex(5), 0u);
   EXPECT_EQ(scene.PointIndex(100), 2u);
-  EXPECT_THAT(ErrorOf([&] { scene.ImageIndex(4); }), HasSubstr("image id 4"));
-  EXPECT_THAT(ErrorOf([&] { scene.PointIndex(43); }), HasSubstr("point3D id 43"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { scene.ImageIndex(4); }),
+              HasSubstr("image id 4"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { scene.PointIndex(43); }),
+              HasSubstr("point3D id 43"));
   // Points without observations are kept.
   EXPECT_EQ(scene.NumPoints(), 3u);
   EXPECT_EQ(scene.NumObservations(), 0u);
@@ -98,18 +93,19 @@ TEST(Scene, IndexLookups) {
 
 TEST(Scene, ObservationsOfUnknownIdsThrowNamingTheId) {
   const Reconstruction reconstruction = MakeReconstruction();
-  EXPECT_THAT(ErrorOf([&] {
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
                 Scene::FromReconstruction(reconstruction, MakeObservations({{3, 5}, {99, 5}}));
               }),
               HasSubstr("observation 1: image id 99"));
-  EXPECT_THAT(ErrorOf([&] {
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
                 Scene::FromReconstruction(reconstruction, MakeObservations({{3, 5}, {7, 77}}));
               }),
               HasSubstr("observation 1: point3D id 77"));
   Observations ragged = MakeObservations({{3, 5}, {7, 42}});
   ragged.point3D_ids.pop_back();
-  EXPECT_THAT(ErrorOf([&] { Scene::FromReconstruction(reconstruction, ragged); }),
-              HasSubstr("1 point3D ids"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { Scene::FromReconstruction(reconstruction, ragged); }),
+      HasSubstr("1 point3D ids"));
 }
 
 TEST(Scene, RebuildIndexAfterDirectAssignment) {
@@ -126,7 +122,8 @@ TEST(Scene, RebuildIndexAfterDirectAssignment) {
   EXPECT_EQ(scene.PointIndex(1), 2u);
 
   scene.point3D_ids = {8, 9, 8};
-  EXPECT_THAT(ErrorOf([&] { scene.RebuildIndex(); }), HasSubstr("point3D id 8 appears twice"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { scene.RebuildIndex(); }),
+              HasSubstr("point3D id 8 appears twice"));
 }
 
 }  // namespace

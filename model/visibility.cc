@@ -13,21 +13,6 @@ namespace {
 
 constexpr uint32_t kMagic = 0x56435348;  // "HSCV"
 constexpr uint32_t kVersion = 1;
-// Arrays are read in chunks so that a corrupt count fails on the missing bytes instead of
-// allocating whatever the count asks for.
-constexpr size_t kReadChunkElements = size_t{1} << 20;
-
-template <typename T>
-std::vector<T> ReadArray(std::istream& stream, uint64_t count, const std::string& what) {
-  std::vector<T> values;
-  for (uint64_t done = 0; done < count;) {
-    const size_t chunk = static_cast<size_t>(std::min<uint64_t>(count - done, kReadChunkElements));
-    values.resize(done + chunk);
-    ReadBinaryArray(stream, values.data() + done, chunk, what);
-    done += chunk;
-  }
-  return values;
-}
 
 }  // namespace
 
@@ -116,10 +101,12 @@ Visibility Visibility::Read(std::istream& stream, const std::string& source) {
   Visibility visibility;
   visibility.num_points_ = num_points;
   // The offsets' leading zero is implicit in the file.
-  const std::vector<uint64_t> ends = ReadArray<uint64_t>(stream, num_images, source + ": offsets");
+  const std::vector<uint64_t> ends =
+      ReadBinaryVector<uint64_t>(stream, num_images, source + ": offsets");
   visibility.offsets_.push_back(0);
   visibility.offsets_.insert(visibility.offsets_.end(), ends.begin(), ends.end());
-  visibility.point_indices_ = ReadArray<uint32_t>(stream, num_entries, source + ": point indices");
+  visibility.point_indices_ =
+      ReadBinaryVector<uint32_t>(stream, num_entries, source + ": point indices");
 
   for (size_t i = 0; i < num_images; ++i) {
     const uint64_t begin = visibility.offsets_[i];

@@ -11,20 +11,12 @@
 #include <vector>
 
 #include "util/random.h"
+#include "util/testing.h"
 
 namespace hscloc {
 namespace {
 
 using ::testing::HasSubstr;
-
-std::string ErrorOf(const std::function<void()>& body) {
-  try {
-    body();
-  } catch (const std::invalid_argument& error) {
-    return error.what();
-  }
-  return "";
-}
 
 struct RandomObservations {
   size_t num_images = 0;
@@ -88,15 +80,15 @@ TEST(Visibility, PointsOfAnImageAreSortedAndUnique) {
 }
 
 TEST(Visibility, BadObservationsThrowNamingThem) {
-  EXPECT_THAT(ErrorOf([] {
+  EXPECT_THAT(testing::InvalidArgumentMessage([] {
                 Visibility::FromObservations(3, 10, {0, 1, 3}, {0, 0, 0});
               }),
               HasSubstr("observation 2 (image 3, point 0)"));
-  EXPECT_THAT(ErrorOf([] {
+  EXPECT_THAT(testing::InvalidArgumentMessage([] {
                 Visibility::FromObservations(3, 10, {0, 1}, {9, 10});
               }),
               HasSubstr("observation 1 (image 1, point 10)"));
-  EXPECT_THAT(ErrorOf([] {
+  EXPECT_THAT(testing::InvalidArgumentMessage([] {
                 Visibility::FromObservations(3, 10, {0, 1}, {0});
               }),
               HasSubstr("2 image indices but 1 point indices"));
@@ -135,8 +127,9 @@ TEST(Visibility, TruncatedOrCorruptDataThrowsNamingTheSource) {
   const std::string bytes = stream.str();
   for (size_t length = 0; length < bytes.size(); ++length) {
     std::istringstream truncated(bytes.substr(0, length));
-    EXPECT_THAT(ErrorOf([&] { Visibility::Read(truncated, "visibility.bin"); }),
-                HasSubstr("visibility.bin"))
+    EXPECT_THAT(
+        testing::InvalidArgumentMessage([&] { Visibility::Read(truncated, "visibility.bin"); }),
+        HasSubstr("visibility.bin"))
         << "truncated to " << length << " bytes";
   }
 
@@ -145,13 +138,15 @@ TEST(Visibility, TruncatedOrCorruptDataThrowsNamingTheSource) {
   std::string unsorted = bytes;
   std::swap(unsorted[kPointsOffset], unsorted[kPointsOffset + 4]);
   std::istringstream unsorted_stream(unsorted);
-  EXPECT_THAT(ErrorOf([&] { Visibility::Read(unsorted_stream, "visibility.bin"); }),
-              HasSubstr("visibility.bin: points of image 0"));
+  EXPECT_THAT(
+      testing::InvalidArgumentMessage([&] { Visibility::Read(unsorted_stream, "visibility.bin"); }),
+      HasSubstr("visibility.bin: points of image 0"));
 
   std::string bad_offset = bytes;
   bad_offset[8 + 3 * 8] = 9;  // image 0 ends past the 4 entries
   std::istringstream bad_offset_stream(bad_offset);
-  EXPECT_THAT(ErrorOf([&] { Visibility::Read(bad_offset_stream, "visibility.bin"); }),
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { Visibility::Read(bad_offset_stream, "visibility.bin"); }),
               HasSubstr("visibility.bin: offsets of image 0"));
 }
 

@@ -3,6 +3,7 @@
 // models, hscloc's map blobs.)
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <istream>
 #include <ostream>
@@ -40,6 +41,21 @@ void ReadBinaryArray(std::istream& stream, T* values, size_t count, const std::s
     ThrowInvalidArgument("truncated data: {} ({} bytes expected, {} read)", what, bytes,
                          stream.gcount());
   }
+}
+
+// Reads `count` values into a vector, growing it chunk by chunk: a corrupt count fails at the end
+// of the data instead of first allocating whatever the count claims.
+template <typename T>
+std::vector<T> ReadBinaryVector(std::istream& stream, uint64_t count, const std::string& what) {
+  constexpr uint64_t kChunkElements = uint64_t{1} << 20;
+  std::vector<T> values;
+  for (uint64_t done = 0; done < count;) {
+    const uint64_t chunk = std::min(count - done, kChunkElements);
+    values.resize(done + chunk);
+    ReadBinaryArray(stream, values.data() + done, chunk, what);
+    done += chunk;
+  }
+  return values;
 }
 
 // Reads a NUL-terminated string of at most max_length characters.

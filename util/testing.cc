@@ -48,6 +48,16 @@ std::optional<std::string> ColmapExecutable() {
   return std::string(path);
 }
 
+std::string InvalidArgumentMessage(const std::function<void()>& body) {
+  try {
+    body();
+  } catch (const std::invalid_argument& error) {
+    return error.what();
+  }
+  ADD_FAILURE() << "expected a std::invalid_argument";
+  return "";
+}
+
 int RunCommand(const std::string& command, const std::string& log_path) {
   // COLMAP links Qt, which needs a display unless told to draw nowhere.
   setenv("QT_QPA_PLATFORM", "offscreen", /*overwrite=*/0);

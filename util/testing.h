@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <functional>
 #include <optional>
 #include <string>
 
@@ -30,6 +31,10 @@ std::optional<std::filesystem::path> RealDataDir(const std::string& subdirectory
 
 // The COLMAP executable (HSCLOC_COLMAP, set by ctest), or nullopt.
 std::optional<std::string> ColmapExecutable();
+
+// The message of the std::invalid_argument that `body` throws; records a test failure (and returns
+// "") when it throws none.
+std::string InvalidArgumentMessage(const std::function<void()>& body);
 
 // Runs a shell command, returns its exit status; its output goes to `log_path` when given.
 int RunCommand(const std::string& command, const std::string& log_path = "");
