@@ -366,7 +366,8 @@ void SyntheticCity::PlaceQueries(QueryCondition condition) {
       const double roll = random.Uniform(-1, 1) * options_.query_roll_max_deg * kDegToRad;
       const auto& size = sizes[random.UniformInt(3)];
       SyntheticView view;
-      view.name = fmt::format("query/{}/{:05d}.jpg", QueryConditionName(condition), q);
+      // Unique basenames, as in Aachen: submissions name queries by basename.
+      view.name = fmt::format("query/{0}/{0}_{1:05d}.jpg", QueryConditionName(condition), q);
       view.camera = MakeSimpleRadialCamera(
           static_cast<camera_t>(q + 1), size[0], size[1],
           random.Uniform(options_.query_focal_min_px, options_.query_focal_max_px), random,

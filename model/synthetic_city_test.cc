@@ -288,6 +288,43 @@ TEST(SyntheticCityWriter, SameSeedGivesIdenticalFiles) {
   EXPECT_NE(ReadFile(temp / "a" / "map/points3D.bin"), ReadFile(temp / "c" / "map/points3D.bin"));
 }
 
+TEST(SyntheticCityWriter, QueryPointIdsNameMapPointsTheKeypointsSee) {
+  testing::TempDir temp;
+  SyntheticCityOptions options = SyntheticCityOptions::Preset("tiny");
+  options.num_day_queries = 3;
+  options.num_night_queries = 0;
+  const SyntheticCity city(options);
+  WriteSyntheticCity(city, temp / "city", QuietWrite());
+  const Reconstruction map = ReadColmapModel(temp / "city" / "map");
+  const auto features = OpenH5Features(temp / "city" / "features.h5");
+  std::ifstream file(temp / "city" / "queries" / "point3D_ids.txt");
+  size_t in_map = 0;
+  size_t line_number = 0;
+  for (std::string line; std::getline(file, line); ++line_number) {
+    std::istringstream fields(line);
+    std::string name;
+    fields >> name;
+    const SyntheticView& view = city.queries(QueryCondition::kDay).at(line_number);
+    ASSERT_EQ(name, view.name);
+    const ImageFeatures query = features->Read(name);
+    int64_t keypoint = 0;
+    for (int64_t id; fields >> id; ++keypoint) {
+      if (id < 0) continue;
+      ++in_map;
+      // The id is a map point, and the keypoint lies at its projection (plus detection noise).
+      const auto point = map.points3D.find(static_cast<point3D_t>(id));
+      ASSERT_NE(point, map.points3D.end()) << name << " keypoint " << keypoint;
+      const Eigen::Vector2d projection =
+          view.camera.ImgFromPointInCam(view.cam_from_world * point->second.xyz);
+      EXPECT_LT((projection - query.keypoints.row(keypoint).transpose().cast<double>()).norm(), 3)
+          << name << " keypoint " << keypoint;
+    }
+    EXPECT_EQ(keypoint, query.NumKeypoints()) << name;
+  }
+  EXPECT_EQ(line_number, 3u);
+  EXPECT_GT(in_map, 100u);
+}
+
 TEST(SyntheticCityWriter, RefusesToOverwriteUnlessAsked) {
   testing::TempDir temp;
   SyntheticCityOptions options = SyntheticCityOptions::Preset("tiny");

@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include "model/colmap_io.h"
+#include "model/query_io.h"
 #include "util/check.h"
 #include "util/parallel.h"
 #include "util/progress_bar.h"
@@ -45,18 +46,6 @@ std::ofstream OpenText(const fs::path& path) {
   std::ofstream stream(path);
   THROW_CHECK_MSG(stream.good(), "cannot write {}", path.string());
   return stream;
-}
-
-std::string FormatPoseLine(const std::string& name, const Rigid3d& cam_from_world) {
-  const Eigen::Quaterniond& q = cam_from_world.rotation;
-  const Eigen::Vector3d& t = cam_from_world.translation;
-  return fmt::format("{} {} {} {} {} {} {} {}\n", name, q.w(), q.x(), q.y(), q.z(), t.x(), t.y(),
-                     t.z());
-}
-
-std::string FormatIntrinsicsLine(const std::string& name, const Camera& camera) {
-  return fmt::format("{} {} {} {} {}\n", name, CameraModelName(camera.model_id), camera.width,
-                     camera.height, fmt::join(camera.params, " "));
 }
 
 Eigen::Matrix<uint8_t, 3, 1> BlockColor(int block) {
@@ -153,9 +142,12 @@ SyntheticCityStats WriteSyntheticCity(const SyntheticCity& city, const fs::path&
     }
   }
 
-  const auto in_map = [&](int64_t point) {
-    return point >= 0 && static_cast<int>(tracks[point].size()) >= city.options().min_track_length;
-  };
+  // Decided before the tracks move into the reconstruction, for the queries' point ids too.
+  std::vector<bool> point_in_map(tracks.size());
+  for (size_t p = 0; p < tracks.size(); ++p) {
+    point_in_map[p] = static_cast<int>(tracks[p].size()) >= city.options().min_track_length;
+  }
+  const auto in_map = [&](int64_t point) { return point >= 0 && point_in_map[point]; };
   for (size_t p = 0; p < tracks.size(); ++p) {
     if (!in_map(static_cast<int64_t>(p))) {
       for (const TrackElement& element : tracks[p]) {

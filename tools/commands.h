@@ -11,5 +11,10 @@ using CommandRunner = std::function<int()>;
 void AddSynthCommand(CLI::App& app, CommandRunner& run);
 void AddBuildMapCommand(CLI::App& app, CommandRunner& run);
 void AddInspectCommand(CLI::App& app, CommandRunner& run);
+void AddTrainCommand(CLI::App& app, CommandRunner& run);
+void AddLocalizeCommand(CLI::App& app, CommandRunner& run);
+void AddEvalCommand(CLI::App& app, CommandRunner& run);
+void AddServeCommand(CLI::App& app, CommandRunner& run);
+void AddKeygenCommand(CLI::App& app, CommandRunner& run);
 
 }  // namespace hscloc

@@ -22,10 +22,6 @@ struct PlannedCommand {
 // Subcommands that DESIGN.md plans but whose implementation has not landed yet: they are listed in
 // --help so the shape of the tool is visible, and say so when run.
 constexpr PlannedCommand kPlannedCommands[] = {
-    {"train", "Train the hierarchical classification network of a map"},
-    {"localize", "Localize a list of queries offline and write a submission file"},
-    {"eval", "Evaluate a submission against ground-truth poses"},
-    {"serve", "Serve localization requests over ZeroMQ"},
     {"demo", "Run the whole pipeline on an embedded demo map"},
 };
 
@@ -44,6 +40,11 @@ int main(int argc, char** argv) {
   hscloc::AddSynthCommand(app, run);
   hscloc::AddBuildMapCommand(app, run);
   hscloc::AddInspectCommand(app, run);
+  hscloc::AddTrainCommand(app, run);
+  hscloc::AddLocalizeCommand(app, run);
+  hscloc::AddEvalCommand(app, run);
+  hscloc::AddServeCommand(app, run);
+  hscloc::AddKeygenCommand(app, run);
   for (const PlannedCommand& planned : kPlannedCommands) {
     CLI::App* command = app.add_subcommand(planned.name, planned.description);
     command->allow_extras();

@@ -10,7 +10,15 @@ namespace hscloc {
 namespace {
 
 constexpr double kRedrawIntervalS = 0.1;
+// Without a terminal (CI, services, pipes) the state goes out as a plain log line this often, so
+// that long work still shows it is moving without flooding the log.
+constexpr double kLogIntervalS = 15.0;
 constexpr int kBarWidth = 24;
+
+bool IsTerminal(ProgressBar::Display display) {
+  return display == ProgressBar::Display::kAlways ||
+         (display == ProgressBar::Display::kAuto && isatty(fileno(stderr)) == 1);
+}
 
 bool ShouldDraw(ProgressBar::Display display) {
   switch (display) {
@@ -21,7 +29,7 @@ bool ShouldDraw(ProgressBar::Display display) {
     case ProgressBar::Display::kAuto:
       break;
   }
-  return isatty(fileno(stderr)) == 1;
+  return true;
 }
 
 std::string FormatCount(double value) {
@@ -34,7 +42,12 @@ std::string FormatCount(double value) {
 }  // namespace
 
 ProgressBar::ProgressBar(std::string label, uint64_t total, Display display)
-    : label_(std::move(label)), total_(total), draw_(ShouldDraw(display)) {}
+    : label_(std::move(label)),
+      total_(total),
+      draw_(ShouldDraw(display)),
+      redraw_(IsTerminal(display)) {
+  if (!redraw_) next_draw_s_ = kLogIntervalS;
+}
 
 ProgressBar::~ProgressBar() { Finish(); }
 
@@ -44,7 +57,8 @@ void ProgressBar::Advance(uint64_t units) {
   const double now_s = timer_.ElapsedSeconds();
   double next_s = next_draw_s_.load(std::memory_order_relaxed);
   // One thread wins the redraw slot; the others return at once instead of queueing on the lock.
-  if (now_s >= next_s && next_draw_s_.compare_exchange_strong(next_s, now_s + kRedrawIntervalS)) {
+  if (now_s >= next_s && next_draw_s_.compare_exchange_strong(
+                             next_s, now_s + (redraw_ ? kRedrawIntervalS : kLogIntervalS))) {
     Draw(false);
   }
 }
@@ -91,8 +105,12 @@ void ProgressBar::Draw(bool final) {
   const std::string line = Render();
   std::lock_guard<std::mutex> lock(mutex_);
   if (finished_) return;
-  // \033[K clears what a longer previous line left behind.
-  std::fprintf(stderr, "\r%s\033[K%s", line.c_str(), final ? "\n" : "");
+  if (redraw_) {
+    // \033[K clears what a longer previous line left behind.
+    std::fprintf(stderr, "\r%s\033[K%s", line.c_str(), final ? "\n" : "");
+  } else {
+    std::fprintf(stderr, "%s\n", line.c_str());
+  }
   std::fflush(stderr);
 }
 

@@ -1,5 +1,6 @@
-// A progress bar for long loops: count, rate and ETA on one redrawn line of stderr. It draws only
-// when stderr is a terminal (or when forced), so logs and CI output stay clean. Advance() is
+// A progress bar for long loops: count, rate and ETA on one redrawn line of stderr when stderr is
+// a terminal (or when forced); elsewhere (CI, services, pipes) the same text as a plain line every
+// 15 s and at the end, so logs show long work moving without filling up. Advance() is
 // thread-safe and cheap enough for per-item calls from worker threads.
 #pragma once
 
@@ -40,6 +41,7 @@ class ProgressBar {
   const std::string label_;
   const uint64_t total_;
   const bool draw_;
+  const bool redraw_;  // redraw one line (a terminal) rather than log whole lines
   std::atomic<uint64_t> done_{0};
   std::atomic<double> next_draw_s_{0.0};
   mutable std::mutex mutex_;

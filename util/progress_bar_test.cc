@@ -2,7 +2,10 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <algorithm>
+#include <cstdio>
 #include <thread>
 #include <vector>
 
@@ -50,6 +53,22 @@ TEST(ProgressBar, DoesNotDrawWhenNotAskedTo) {
   bar.Advance(10);
   bar.Finish();
   EXPECT_EQ(::testing::internal::GetCapturedStderr(), "");
+}
+
+TEST(ProgressBar, LogsPlainLinesWithoutATerminal) {
+  if (isatty(fileno(stderr))) GTEST_SKIP() << "stderr is a terminal here";
+  ::testing::internal::CaptureStderr();
+  {
+    ProgressBar bar("batch", 5, ProgressBar::Display::kAuto);
+    EXPECT_TRUE(bar.drawing());
+    bar.Advance(5);  // within the first 15 s: no line yet
+    bar.Finish();
+  }
+  const std::string output = ::testing::internal::GetCapturedStderr();
+  EXPECT_THAT(output, HasSubstr("batch ["));
+  EXPECT_THAT(output, HasSubstr("100% 5/5"));
+  EXPECT_THAT(output, Not(HasSubstr("\r")));
+  EXPECT_EQ(std::count(output.begin(), output.end(), '\n'), 1);
 }
 
 TEST(ProgressBar, DrawsFinalLineOnce) {

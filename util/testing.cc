@@ -42,6 +42,13 @@ std::optional<std::filesystem::path> RealDataDir(const std::string& subdirectory
   return path;
 }
 
+std::optional<std::filesystem::path> TrainedSmallCityDir() {
+  const std::filesystem::path dir =
+      EnvironmentOr("HSCLOC_TRAINED_SMALL_CITY", HSCLOC_DEFAULT_TRAINED_SMALL_CITY);
+  if (dir.empty() || !std::filesystem::exists(dir / "map" / "network.pt")) return std::nullopt;
+  return dir;
+}
+
 std::optional<std::string> ColmapExecutable() {
   const char* path = EnvironmentOr("HSCLOC_COLMAP", HSCLOC_DEFAULT_COLMAP);
   if (*path == '\0' || access(path, X_OK) != 0) return std::nullopt;

@@ -29,6 +29,11 @@ class TempDir {
 // nullopt where `subdirectory` of it does not exist.
 std::optional<std::filesystem::path> RealDataDir(const std::string& subdirectory);
 
+// The trained `small` synthetic city that the test suite's fixture builds (tests/CMakeLists.txt):
+// `city/` (COLMAP model, features.h5, queries) and `map/` (the bundle with its network). From
+// HSCLOC_TRAINED_SMALL_CITY or the build's default; nullopt until the fixture has run.
+std::optional<std::filesystem::path> TrainedSmallCityDir();
+
 // The COLMAP executable (HSCLOC_COLMAP, set by ctest), or nullopt.
 std::optional<std::string> ColmapExecutable();
 
@@ -48,6 +53,14 @@ int RunCommand(const std::string& command, const std::string& log_path = "");
     GTEST_SKIP() << "real data set '" << (subdirectory)                           \
                  << "' not found (set the CMake cache variable HSCLOC_DATA_DIR)"; \
   }                                                                               \
+  const std::filesystem::path variable = *variable##_optional
+
+#define HSCLOC_REQUIRE_TRAINED_SMALL_CITY(variable)                                          \
+  const auto variable##_optional = ::hscloc::testing::TrainedSmallCityDir();                 \
+  if (!variable##_optional) {                                                                \
+    GTEST_SKIP() << "the trained small city is missing: run the tests through ctest, whose " \
+                    "fixture.trained_small_city builds it";                                  \
+  }                                                                                          \
   const std::filesystem::path variable = *variable##_optional
 
 #define HSCLOC_REQUIRE_COLMAP(variable)                                         \

@@ -1,0 +1,145 @@
+// The hierarchical scene coordinate classification network (Li et al., "Hierarchical Scene
+// Coordinate Classification and Regression for Visual Localization", CVPR 2020), in its
+// classification-only form for sparse features: for each keypoint descriptor and a database image
+// id it predicts the label path of a 3D point in the map's label tree, level by level.
+//
+// Level j (no layers shared between levels):
+//   trunk        t = ELU(Linear(ELU(Linear(x))))                   x: L2-normalized descriptor
+//   generator    z = ELU(Linear(ELU(E_id[image] + sum_{k<j} E_k[label_k])))
+//                gamma_i = Linear(z), beta_i = Linear(z)           one pair per conditioned layer
+//   conditioned  h_i = ELU(gamma_i * (W_i h_{i-1} + b_i) + beta_i)  h_0 = t
+//   output       logits = Linear(h_last) over the children of the parent cluster
+// The paper's 1x1 convolutions over one-hot labels and an encoded image id are embedding lookups;
+// the paper's per-position linear modulation is gamma * (W h + b) + beta.
+//
+// Inference runs the levels in order, each conditioned on the labels predicted before it. The
+// trunk and the first conditioned layer's linear part depend on the descriptor only, so they run
+// once per query; the image-dependent parts run on all (image, descriptor) pairs as one batch,
+// with the generator evaluated once per distinct (image, label prefix).
+//
+// libtorch stays behind this interface: callers see Eigen matrices and plain structs.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <iosfwd>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "model/features.h"
+#include "model/label_tree.h"
+#include "model/map_bundle.h"
+#include "model/visibility.h"
+
+namespace hscloc {
+
+namespace network_blobs {
+inline constexpr char kNetwork[] = "network.pt";
+inline constexpr char kTrainingLog[] = "training_log.csv";
+}  // namespace network_blobs
+
+// Where tensors live. kCuda needs a libtorch built with CUDA and a visible GPU.
+enum class ComputeDevice { kCpu, kCuda };
+// "cpu" or "cuda"; throws std::invalid_argument otherwise.
+ComputeDevice ParseComputeDevice(const std::string& name);
+std::string ComputeDeviceName(ComputeDevice device);
+bool IsComputeDeviceAvailable(ComputeDevice device);
+
+// Sets the CPU threads of libtorch for the whole process (<= 0: all cores). Where libtorch's
+// matrix products run in OpenBLAS's own thread pool (Debian's libtorch), OpenBLAS gets the threads
+// and libtorch's OpenMP pool one: both pools spin while waiting, and on shared cores they starve
+// each other (training 4 to 25 times slower, docs/decisions.md).
+void SetComputeThreads(int num_threads);
+
+// What the map fixes: descriptor dimension, label tree shape and the number of database images.
+struct NetworkShape {
+  int descriptor_dim = 0;
+  int levels = 0;
+  int branching = 0;
+  // Database images; the image embedding has one more row, index num_images, meaning "no image".
+  int num_images = 0;
+
+  void Check() const;
+  bool operator==(const NetworkShape& other) const;
+};
+
+struct NetworkOptions {
+  int channels = 256;          // C: width of each level's trunk and conditioned layers
+  int embedding_dim = 64;      // width of the image and label embeddings and of the generator
+  int conditioned_layers = 1;  // FiLM-modulated layers per level, 1 .. 3
+
+  void Check() const;
+  bool operator==(const NetworkOptions& other) const;
+};
+
+// Predictions for K conditioning images and N descriptors; (k, n) is row k * N + n of `labels`.
+struct PointPredictions {
+  int64_t num_images = 0;       // K
+  int64_t num_descriptors = 0;  // N
+  // Dense point index of the leaf the label path leads to; -1 when the path leads to no point.
+  Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> point_indices;  // K x N
+  // Product over the levels of the chosen label's softmax probability (not renormalized when a
+  // visibility mask excluded other labels), in [0, 1].
+  Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> confidences;  // K x N
+  // The predicted label path of every (k, n).
+  Eigen::Matrix<uint8_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> labels;  // K*N x levels
+};
+
+class Network {
+ public:
+  // A network with freshly initialized weights: the same shape, options and seed give the same
+  // weights. Seeds libtorch's global generator with `seed`.
+  Network(const NetworkShape& shape, const NetworkOptions& options, uint64_t seed);
+  ~Network();
+  Network(Network&&) noexcept;
+  Network& operator=(Network&&) noexcept;
+  Network(const Network&) = delete;
+  Network& operator=(const Network&) = delete;
+
+  const NetworkShape& shape() const;
+  const NetworkOptions& options() const;
+  // The image index that stands for "no image" (the id-free ablation): shape().num_images.
+  uint32_t NoImageIndex() const { return static_cast<uint32_t>(shape().num_images); }
+  int64_t NumParameters() const;
+
+  // Moves the weights; throws std::invalid_argument when the device is not available.
+  void SetDevice(ComputeDevice device);
+  ComputeDevice device() const;
+
+  // A libtorch archive holding the shape, the options and the weights.
+  void Save(std::ostream& stream) const;
+  // Throws std::invalid_argument naming `source` when the data is not a network archive of this
+  // format version.
+  static Network Load(std::istream& stream, const std::string& source,
+                      ComputeDevice device = ComputeDevice::kCpu);
+  // The network of a trained map bundle (blob network_blobs::kNetwork); throws naming the bundle
+  // when it has none.
+  static Network FromBundle(const MapBundle& bundle, ComputeDevice device = ComputeDevice::kCpu);
+
+  // Predicts the point of every descriptor (N x D, any norm; rows are L2-normalized here) for each
+  // of the K image indices (< num_images, or NoImageIndex()). With `visibility_mask`, each level
+  // only chooses among children whose subtree holds a point the conditioning image observes (a
+  // row falls back to the plain argmax where no child qualifies, and NoImageIndex() rows are never
+  // masked). Throws std::invalid_argument when the descriptor dimension, an image index, the tree
+  // or the visibility lists do not fit the network. Safe to call concurrently.
+  PointPredictions Predict(const DescriptorMatrix& descriptors,
+                           const std::vector<uint32_t>& image_indices, const LabelTree& tree,
+                           const Visibility* visibility_mask = nullptr) const;
+
+  // Floating-point operations (2 per multiply-add) of the matrix products of one Predict call,
+  // counting the generator once per (image, descriptor) pair, i.e. without the deduplication of
+  // identical (image, label prefix) rows that Predict performs.
+  double PredictFlops(int64_t num_descriptors, int64_t num_images) const;
+
+  // True when both networks have the same shape, options and bit-identical weights.
+  bool HasSameWeights(const Network& other) const;
+
+ private:
+  struct Impl;
+  explicit Network(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+  friend struct NetworkInternals;
+};
+
+}  // namespace hscloc

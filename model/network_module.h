@@ -1,0 +1,92 @@
+// The libtorch modules behind model/network.h, shared by the network's and the trainer's .cc
+// files only: nothing outside model/'s network files includes this header.
+#pragma once
+
+#include <torch/torch.h>
+
+#include <memory>
+#include <vector>
+
+#include "model/network.h"
+
+namespace hscloc {
+
+// FiLM parameters of one level: a (gamma, beta) pair per conditioned layer, one row per input row.
+struct LevelModulation {
+  std::vector<torch::Tensor> gammas;
+  std::vector<torch::Tensor> betas;
+};
+
+// One level of the network (see model/network.h for the equations).
+class LevelImpl : public torch::nn::Module {
+ public:
+  LevelImpl(int level, const NetworkShape& shape, const NetworkOptions& options);
+
+  // [N, D] normalized descriptors -> [N, C].
+  torch::Tensor Trunk(const torch::Tensor& descriptors);
+  // image_indices [R] and prefix_labels [R, level] (int64) -> the modulation of R rows.
+  LevelModulation Generate(const torch::Tensor& image_indices, const torch::Tensor& prefix_labels);
+  // W_i h + b_i of conditioned layer i.
+  torch::Tensor ConditionedLinear(int layer, const torch::Tensor& features);
+  torch::Tensor Logits(const torch::Tensor& features);
+
+  // Teacher-forced logits [R, branching] of R (descriptor, image, prefix) rows.
+  torch::Tensor forward(const torch::Tensor& descriptors, const torch::Tensor& image_indices,
+                        const torch::Tensor& prefix_labels);
+
+  int level() const { return level_; }
+  int NumConditionedLayers() const { return static_cast<int>(conditioned_.size()); }
+
+ private:
+  int level_;
+  // Unit-norm descriptors have components of about 1/sqrt(D); the trunk sees them scaled to unit
+  // variance, as He initialization assumes, so Adam's steps have the same relative size for any D.
+  double input_scale_ = 1;
+  torch::nn::Linear trunk1_{nullptr};
+  torch::nn::Linear trunk2_{nullptr};
+  torch::nn::Embedding image_embedding_{nullptr};
+  std::vector<torch::nn::Embedding> label_embeddings_;
+  torch::nn::Linear generator_{nullptr};
+  std::vector<torch::nn::Linear> gamma_heads_;
+  std::vector<torch::nn::Linear> beta_heads_;
+  std::vector<torch::nn::Linear> conditioned_;
+  torch::nn::Linear output_{nullptr};
+};
+TORCH_MODULE(Level);
+
+class HscNetImpl : public torch::nn::Module {
+ public:
+  HscNetImpl(const NetworkShape& shape, const NetworkOptions& options);
+
+  // Teacher-forced logits of every level for R rows: normalized descriptors [R, D], image indices
+  // [R] and ground-truth labels [R, levels] (int64), of which level j sees the first j columns.
+  std::vector<torch::Tensor> forward(const torch::Tensor& descriptors,
+                                     const torch::Tensor& image_indices,
+                                     const torch::Tensor& labels);
+
+  std::vector<Level> levels;
+};
+TORCH_MODULE(HscNet);
+
+torch::Device TorchDevice(ComputeDevice device);
+// Rows scaled to unit L2 norm (zero rows stay zero).
+torch::Tensor NormalizeRows(const torch::Tensor& rows);
+
+struct Network::Impl {
+  NetworkShape shape;
+  NetworkOptions options;
+  HscNet module{nullptr};
+  ComputeDevice device = ComputeDevice::kCpu;
+};
+
+// The trainer's access to the modules behind a Network.
+struct NetworkInternals {
+  static HscNet& Module(Network& network) { return network.impl_->module; }
+  static const HscNet& Module(const Network& network) { return network.impl_->module; }
+  // Saves into / restores from an archive nested in a larger one (checkpoints).
+  static void SaveTo(const Network& network, torch::serialize::OutputArchive& archive);
+  static Network LoadFrom(torch::serialize::InputArchive& archive, const std::string& source,
+                          ComputeDevice device);
+};
+
+}  // namespace hscloc

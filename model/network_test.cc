@@ -1,0 +1,226 @@
+#include "model/network.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <sstream>
+
+#include "util/random.h"
+
+namespace hscloc {
+namespace {
+
+using ::testing::HasSubstr;
+
+// A random map: points in a box, a 3-level tree, images that each see a random subset of points.
+struct RandomMap {
+  LabelTree tree;
+  Visibility visibility;
+  NetworkShape shape;
+};
+
+RandomMap MakeRandomMap(uint64_t seed) {
+  Random random(seed);
+  std::vector<Eigen::Vector3d> points(600);
+  for (Eigen::Vector3d& point : points) {
+    point = {random.Uniform(0, 50), random.Uniform(0, 50), random.Uniform(0, 10)};
+  }
+  LabelTreeOptions tree_options;
+  tree_options.levels = 3;
+  tree_options.branching = 12;
+  tree_options.show_progress = false;
+  tree_options.num_threads = 1;
+  RandomMap map;
+  map.tree = LabelTree::Build(points, tree_options);
+  const int num_images = 9;
+  std::vector<uint32_t> image_indices;
+  std::vector<uint32_t> point_indices;
+  for (uint32_t image = 0; image < num_images; ++image) {
+    for (uint32_t point = 0; point < points.size(); ++point) {
+      if (random.Bernoulli(0.1)) {
+        image_indices.push_back(image);
+        point_indices.push_back(point);
+      }
+    }
+  }
+  map.visibility =
+      Visibility::FromObservations(num_images, points.size(), image_indices, point_indices);
+  map.shape = {24, tree_options.levels, tree_options.branching, num_images};
+  return map;
+}
+
+NetworkOptions SmallOptions() {
+  NetworkOptions options;
+  options.channels = 32;
+  options.embedding_dim = 16;
+  options.conditioned_layers = 2;
+  return options;
+}
+
+DescriptorMatrix RandomDescriptors(int64_t rows, int64_t dim, uint64_t seed) {
+  Random random(seed);
+  DescriptorMatrix descriptors(rows, dim);
+  for (int64_t i = 0; i < descriptors.size(); ++i) {
+    descriptors.data()[i] = static_cast<float>(random.Normal());
+  }
+  return descriptors;
+}
+
+TEST(NetworkOptionsTest, ChecksNameTheField) {
+  NetworkOptions options;
+  EXPECT_NO_THROW(options.Check());
+  options.conditioned_layers = 4;
+  EXPECT_THROW(
+      try { options.Check(); } catch (const std::invalid_argument& error) {
+        EXPECT_THAT(error.what(), HasSubstr("conditioned_layers"));
+        throw;
+      },
+      std::invalid_argument);
+  options = NetworkOptions();
+  options.channels = 0;
+  EXPECT_THROW(options.Check(), std::invalid_argument);
+  NetworkShape shape{64, 4, 257, 10};
+  EXPECT_THROW(shape.Check(), std::invalid_argument);
+  shape.branching = 100;
+  EXPECT_NO_THROW(shape.Check());
+  shape.num_images = 0;
+  EXPECT_THROW(shape.Check(), std::invalid_argument);
+  EXPECT_EQ(ParseComputeDevice("cpu"), ComputeDevice::kCpu);
+  EXPECT_THROW(ParseComputeDevice("tpu"), std::invalid_argument);
+}
+
+TEST(NetworkTest, PredictionsAreConsistentWithTheTree) {
+  const RandomMap map = MakeRandomMap(1);
+  const Network network(map.shape, SmallOptions(), 7);
+  EXPECT_EQ(network.NoImageIndex(), 9u);
+  const DescriptorMatrix descriptors = RandomDescriptors(40, map.shape.descriptor_dim, 2);
+  const std::vector<uint32_t> images = {0, 4, network.NoImageIndex()};
+  const PointPredictions predictions = network.Predict(descriptors, images, map.tree);
+  ASSERT_EQ(predictions.num_images, 3);
+  ASSERT_EQ(predictions.num_descriptors, 40);
+  ASSERT_EQ(predictions.labels.rows(), 120);
+  ASSERT_EQ(predictions.labels.cols(), 3);
+  for (int64_t k = 0; k < 3; ++k) {
+    for (int64_t n = 0; n < 40; ++n) {
+      const uint8_t* labels = predictions.labels.data() + (k * 40 + n) * 3;
+      EXPECT_EQ(predictions.point_indices(k, n), map.tree.PointOfLabels(labels));
+      EXPECT_GT(predictions.confidences(k, n), 0.0f);
+      EXPECT_LE(predictions.confidences(k, n), 1.0f);
+      for (int level = 0; level < 3; ++level) EXPECT_LT(labels[level], 12);
+    }
+  }
+  // The image conditions the prediction: an untrained network already answers differently.
+  EXPECT_NE(predictions.labels.topRows(40), predictions.labels.middleRows(40, 40));
+
+  const PointPredictions empty = network.Predict(DescriptorMatrix(0, 24), images, map.tree);
+  EXPECT_EQ(empty.point_indices.size(), 0);
+}
+
+TEST(NetworkTest, BatchedImagesEqualSeparateCalls) {
+  const RandomMap map = MakeRandomMap(2);
+  const Network network(map.shape, SmallOptions(), 3);
+  const DescriptorMatrix descriptors = RandomDescriptors(200, map.shape.descriptor_dim, 4);
+  const std::vector<uint32_t> images = {3, 1, 3, 8, network.NoImageIndex(), 0};
+  for (const Visibility* mask : {static_cast<const Visibility*>(nullptr), &map.visibility}) {
+    const PointPredictions batched = network.Predict(descriptors, images, map.tree, mask);
+    for (size_t k = 0; k < images.size(); ++k) {
+      const PointPredictions single = network.Predict(descriptors, {images[k]}, map.tree, mask);
+      EXPECT_EQ(batched.point_indices.row(k), single.point_indices.row(0)) << "image " << k;
+      EXPECT_EQ(batched.labels.middleRows(k * 200, 200), single.labels) << "image " << k;
+      EXPECT_TRUE(batched.confidences.row(k).isApprox(single.confidences.row(0), 1e-5f))
+          << "image " << k;
+    }
+  }
+}
+
+TEST(NetworkTest, VisibilityMaskKeepsPredictionsInTheImage) {
+  const RandomMap map = MakeRandomMap(3);
+  const Network network(map.shape, SmallOptions(), 5);
+  const DescriptorMatrix descriptors = RandomDescriptors(300, map.shape.descriptor_dim, 6);
+  const std::vector<uint32_t> images = {0, 2, 5, 7};
+  const PointPredictions plain = network.Predict(descriptors, images, map.tree);
+  const PointPredictions masked = network.Predict(descriptors, images, map.tree, &map.visibility);
+  size_t plain_visible = 0;
+  for (size_t k = 0; k < images.size(); ++k) {
+    for (int64_t n = 0; n < 300; ++n) {
+      const int64_t point = masked.point_indices(k, n);
+      ASSERT_GE(point, 0);
+      EXPECT_TRUE(map.visibility.IsVisible(images[k], static_cast<uint32_t>(point)));
+      EXPECT_LE(masked.confidences(k, n), 1.0f);
+      const int64_t plain_point = plain.point_indices(k, n);
+      plain_visible += plain_point >= 0 &&
+                       map.visibility.IsVisible(images[k], static_cast<uint32_t>(plain_point));
+    }
+  }
+  // Without the mask an untrained network lands mostly on points the image does not see.
+  EXPECT_LT(plain_visible, 4 * 300 / 2);
+}
+
+TEST(NetworkTest, SaveThenLoadGivesIdenticalPredictions) {
+  const RandomMap map = MakeRandomMap(4);
+  const Network network(map.shape, SmallOptions(), 9);
+  std::stringstream stream;
+  network.Save(stream);
+  const Network loaded = Network::Load(stream, "memory");
+  EXPECT_EQ(loaded.shape(), map.shape);
+  EXPECT_EQ(loaded.options(), SmallOptions());
+  EXPECT_TRUE(loaded.HasSameWeights(network));
+  EXPECT_EQ(loaded.NumParameters(), network.NumParameters());
+  const DescriptorMatrix descriptors = RandomDescriptors(100, map.shape.descriptor_dim, 10);
+  const PointPredictions before = network.Predict(descriptors, {0, 1, 2}, map.tree);
+  const PointPredictions after = loaded.Predict(descriptors, {0, 1, 2}, map.tree);
+  EXPECT_EQ(before.point_indices, after.point_indices);
+  EXPECT_EQ(before.labels, after.labels);
+  EXPECT_EQ(before.confidences, after.confidences);
+}
+
+TEST(NetworkTest, LoadRejectsDataThatIsNoNetwork) {
+  std::stringstream garbage("definitely not a torch archive");
+  EXPECT_THROW(
+      try { Network::Load(garbage, "bundle/network.pt"); } catch (const std::invalid_argument& e) {
+        EXPECT_THAT(e.what(), HasSubstr("bundle/network.pt"));
+        throw;
+      },
+      std::invalid_argument);
+}
+
+TEST(NetworkTest, SeedDeterminesTheInitialWeights) {
+  const RandomMap map = MakeRandomMap(5);
+  const Network a(map.shape, SmallOptions(), 11);
+  const Network b(map.shape, SmallOptions(), 11);
+  const Network c(map.shape, SmallOptions(), 12);
+  EXPECT_TRUE(a.HasSameWeights(b));
+  EXPECT_FALSE(a.HasSameWeights(c));
+}
+
+TEST(NetworkTest, RejectsInputsThatDoNotFit) {
+  const RandomMap map = MakeRandomMap(6);
+  const Network network(map.shape, SmallOptions(), 1);
+  const DescriptorMatrix descriptors = RandomDescriptors(10, map.shape.descriptor_dim, 1);
+  EXPECT_THROW(network.Predict(RandomDescriptors(10, 16, 1), {0}, map.tree), std::invalid_argument);
+  EXPECT_THROW(network.Predict(descriptors, {network.NoImageIndex() + 1}, map.tree),
+               std::invalid_argument);
+  const Visibility other = Visibility::FromObservations(3, 600, {0}, {1});
+  EXPECT_THROW(network.Predict(descriptors, {0}, map.tree, &other), std::invalid_argument);
+  NetworkShape deeper = map.shape;
+  deeper.levels = 4;
+  const Network deeper_network(deeper, SmallOptions(), 1);
+  EXPECT_THROW(deeper_network.Predict(descriptors, {0}, map.tree), std::invalid_argument);
+  if (!IsComputeDeviceAvailable(ComputeDevice::kCuda)) {
+    EXPECT_THROW(Network(map.shape, SmallOptions(), 1).SetDevice(ComputeDevice::kCuda),
+                 std::invalid_argument);
+  }
+}
+
+TEST(NetworkTest, FlopCountGrowsWithTheImageBatch) {
+  const RandomMap map = MakeRandomMap(7);
+  const Network network(map.shape, SmallOptions(), 1);
+  const double one = network.PredictFlops(1000, 1);
+  const double ten = network.PredictFlops(1000, 10);
+  EXPECT_GT(one, 0);
+  EXPECT_GT(ten, 5 * one);
+  EXPECT_LT(ten, 10 * one);
+}
+
+}  // namespace
+}  // namespace hscloc

@@ -1,0 +1,508 @@
+#include "model/trainer.h"
+
+#include <ATen/Parallel.h>
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <optional>
+
+#include "model/map_bundle.h"
+#include "model/network_module.h"
+#include "util/check.h"
+#include "util/parallel.h"
+#include "util/progress_bar.h"
+#include "util/random.h"
+#include "util/timer.h"
+
+namespace hscloc {
+namespace {
+
+// Random stream keys (util/random.h).
+constexpr uint64_t kStreamHoldout = 0x686f6c64;  // "hold"
+constexpr uint64_t kStreamShuffle = 0x73687566;  // "shuf"
+constexpr uint64_t kStreamAugment = 0x6175676d;  // "augm"
+
+// Checkpoint layout version; the network inside carries its own.
+constexpr int64_t kCheckpointVersion = 1;
+
+// The training observations in the order the iterations consume them: an endless sequence of
+// permutations, one per epoch, each drawn from its own stream, so that any iteration's batch can
+// be found without replaying the ones before it (resume).
+class SampleOrder {
+ public:
+  SampleOrder(std::vector<uint32_t> samples, uint64_t seed)
+      : samples_(std::move(samples)), seed_(seed) {}
+
+  uint32_t At(uint64_t position) {
+    const uint64_t epoch = position / samples_.size();
+    if (epoch != epoch_) Shuffle(epoch);
+    return permutation_[position % samples_.size()];
+  }
+
+ private:
+  void Shuffle(uint64_t epoch) {
+    permutation_ = samples_;
+    Random random(seed_, {kStreamShuffle, epoch});
+    for (size_t i = permutation_.size(); i > 1; --i) {
+      std::swap(permutation_[i - 1], permutation_[random.UniformInt(i)]);
+    }
+    epoch_ = epoch;
+  }
+
+  std::vector<uint32_t> samples_;
+  uint64_t seed_;
+  uint64_t epoch_ = ~uint64_t{0};
+  std::vector<uint32_t> permutation_;
+};
+
+struct Batch {
+  torch::Tensor descriptors;  // [B, D], augmented, not yet normalized
+  torch::Tensor images;       // [B]
+  torch::Tensor labels;       // [B, levels]
+};
+
+Batch MakeBatch(const Scene& scene, const LabelTree& tree, const TrainerOptions& options,
+                SampleOrder& order, int64_t iteration, torch::Device device) {
+  const int64_t size = options.batch_size;
+  const int64_t dim = scene.Dimension();
+  const int levels = tree.levels();
+  std::vector<uint32_t> observations(size);
+  for (int64_t row = 0; row < size; ++row) {
+    observations[row] = order.At(static_cast<uint64_t>(iteration * size + row));
+  }
+  torch::Tensor descriptors = torch::empty({size, dim}, torch::kFloat32);
+  torch::Tensor images = torch::empty({size}, torch::kInt64);
+  torch::Tensor labels = torch::empty({size, levels}, torch::kInt64);
+  float* descriptor_data = descriptors.data_ptr<float>();
+  int64_t* image_data = images.data_ptr<int64_t>();
+  int64_t* label_data = labels.data_ptr<int64_t>();
+  const DescriptorAugmentationOptions& augmentation = options.augmentation;
+  const double noise_sigma = augmentation.noise_norm / std::sqrt(static_cast<double>(dim));
+  const uint32_t no_image = static_cast<uint32_t>(scene.NumImages());
+  at::parallel_for(0, size, 64, [&](int64_t begin, int64_t end) {
+    for (int64_t row = begin; row < end; ++row) {
+      const uint32_t observation = observations[row];
+      Random random(options.seed,
+                    {kStreamAugment, static_cast<uint64_t>(iteration), static_cast<uint64_t>(row)});
+      Eigen::Map<Eigen::VectorXf> x(descriptor_data + row * dim, dim);
+      x = scene.observation_descriptors.row(observation).transpose();
+      if (augmentation.enabled) {
+        x /= std::max(x.norm(), 1e-12f);
+        for (int64_t i = 0; i < dim; ++i) {
+          x[i] = random.Bernoulli(augmentation.dimension_dropout)
+                     ? 0.0f
+                     : x[i] + static_cast<float>(random.Normal(0, noise_sigma));
+        }
+      }
+      const bool drop_image = options.image_dropout > 0 && random.Bernoulli(options.image_dropout);
+      image_data[row] = drop_image ? no_image : scene.observation_image_indices[observation];
+      const LabelTree::Label* path =
+          tree.LabelsOfPoint(scene.observation_point_indices[observation]);
+      std::copy(path, path + levels, label_data + row * levels);
+    }
+  });
+  return {descriptors.to(device), images.to(device), labels.to(device)};
+}
+
+// The learning rate after the halvings whose budget fraction `progress` has reached.
+double ScheduledLearningRate(const TrainerOptions& options, double progress) {
+  double rate = options.learning_rate;
+  for (const double fraction : options.halving_fractions) {
+    if (progress >= fraction) rate *= 0.5;
+  }
+  return rate;
+}
+
+void SetLearningRate(torch::optim::Adam& optimizer, double rate) {
+  for (torch::optim::OptimizerParamGroup& group : optimizer.param_groups()) {
+    static_cast<torch::optim::AdamOptions&>(group.options()).lr(rate);
+  }
+}
+
+std::string FormatAccuracies(const std::vector<double>& accuracies) {
+  std::string text;
+  for (const double accuracy : accuracies) {
+    text += fmt::format("{}{:.3f}", text.empty() ? "" : "/", accuracy);
+  }
+  return text;
+}
+
+torch::Tensor LogToTensor(const std::vector<TrainingLogEntry>& log, int levels) {
+  const int64_t columns = 4 + levels;
+  torch::Tensor tensor = torch::zeros({static_cast<int64_t>(log.size()), columns}, torch::kFloat64);
+  for (size_t i = 0; i < log.size(); ++i) {
+    double* row = tensor.data_ptr<double>() + i * columns;
+    row[0] = static_cast<double>(log[i].iteration);
+    row[1] = log[i].seconds;
+    row[2] = log[i].learning_rate;
+    row[3] = log[i].loss;
+    std::copy(log[i].level_accuracies.begin(), log[i].level_accuracies.end(), row + 4);
+  }
+  return tensor;
+}
+
+std::vector<TrainingLogEntry> LogFromTensor(const torch::Tensor& tensor, int levels) {
+  const torch::Tensor cpu = tensor.to(torch::kCPU).to(torch::kFloat64).contiguous();
+  std::vector<TrainingLogEntry> log(cpu.size(0));
+  for (size_t i = 0; i < log.size(); ++i) {
+    const double* row = cpu.data_ptr<double>() + i * (4 + levels);
+    log[i] = {static_cast<int64_t>(row[0]), row[1], row[2], row[3],
+              std::vector<double>(row + 4, row + 4 + levels)};
+  }
+  return log;
+}
+
+struct TrainingState {
+  int64_t iteration = 0;
+  double seconds_before = 0;
+  std::vector<TrainingLogEntry> log;
+};
+
+void SaveCheckpoint(const std::filesystem::path& path, const Network& network,
+                    torch::optim::Adam& optimizer, const TrainingState& state,
+                    const TrainerOptions& options) {
+  torch::serialize::OutputArchive archive;
+  archive.write("checkpoint_version", torch::tensor({kCheckpointVersion}, torch::kInt64));
+  torch::serialize::OutputArchive network_archive;
+  NetworkInternals::SaveTo(network, network_archive);
+  archive.write("network", network_archive);
+  torch::serialize::OutputArchive optimizer_archive;
+  optimizer.save(optimizer_archive);
+  archive.write("optimizer", optimizer_archive);
+  archive.write("iteration", torch::tensor({state.iteration}, torch::kInt64));
+  archive.write("seconds", torch::tensor({state.seconds_before}, torch::kFloat64));
+  archive.write("seed", torch::tensor({static_cast<int64_t>(options.seed)}, torch::kInt64));
+  archive.write("log", LogToTensor(state.log, network.shape().levels));
+  // A crash while writing must not destroy the previous checkpoint.
+  const std::filesystem::path partial = path.string() + ".partial";
+  archive.save_to(partial.string());
+  std::filesystem::rename(partial, path);
+}
+
+int64_t ReadScalar(torch::serialize::InputArchive& archive, const char* key,
+                   const std::string& source) {
+  torch::Tensor tensor;
+  if (!archive.try_read(key, tensor) || tensor.numel() != 1) {
+    ThrowInvalidArgument("{}: not a training checkpoint ('{}' missing)", source, key);
+  }
+  return tensor.to(torch::kCPU).to(torch::kInt64).item<int64_t>();
+}
+
+}  // namespace
+
+void DescriptorAugmentationOptions::Check() const {
+  THROW_CHECK_MSG(noise_norm >= 0 && std::isfinite(noise_norm),
+                  "DescriptorAugmentationOptions.noise_norm = {}", noise_norm);
+  THROW_CHECK_MSG(dimension_dropout >= 0 && dimension_dropout < 1,
+                  "DescriptorAugmentationOptions.dimension_dropout = {}", dimension_dropout);
+}
+
+void TrainerOptions::Check() const {
+  network.Check();
+  augmentation.Check();
+  THROW_CHECK_MSG(max_iterations >= 0, "TrainerOptions.max_iterations = {}", max_iterations);
+  THROW_CHECK_MSG(max_minutes >= 0 && std::isfinite(max_minutes), "TrainerOptions.max_minutes = {}",
+                  max_minutes);
+  THROW_CHECK_MSG(max_iterations > 0 || max_minutes > 0,
+                  "TrainerOptions: max_iterations or max_minutes must be positive");
+  THROW_CHECK_MSG(batch_size > 0, "TrainerOptions.batch_size = {}", batch_size);
+  THROW_CHECK_MSG(learning_rate > 0 && std::isfinite(learning_rate),
+                  "TrainerOptions.learning_rate = {}", learning_rate);
+  for (const double fraction : halving_fractions) {
+    THROW_CHECK_MSG(fraction > 0 && fraction < 1, "TrainerOptions.halving_fractions: {}", fraction);
+  }
+  THROW_CHECK_MSG(image_dropout >= 0 && image_dropout <= 1, "TrainerOptions.image_dropout = {}",
+                  image_dropout);
+  THROW_CHECK_MSG(holdout_fraction >= 0 && holdout_fraction < 1,
+                  "TrainerOptions.holdout_fraction = {}", holdout_fraction);
+  THROW_CHECK_MSG(checkpoint_every_iterations > 0,
+                  "TrainerOptions.checkpoint_every_iterations = {}", checkpoint_every_iterations);
+  THROW_CHECK_MSG(log_every_iterations > 0, "TrainerOptions.log_every_iterations = {}",
+                  log_every_iterations);
+}
+
+std::string TrainingResult::LogCsv() const {
+  std::string csv = "iteration,seconds,learning_rate,loss";
+  const size_t levels = log.empty() ? 0 : log.front().level_accuracies.size();
+  for (size_t level = 1; level <= levels; ++level) csv += fmt::format(",accuracy_level{}", level);
+  csv += '\n';
+  for (const TrainingLogEntry& entry : log) {
+    csv += fmt::format("{},{:.3f},{:.3g},{:.6f}", entry.iteration, entry.seconds,
+                       entry.learning_rate, entry.loss);
+    for (const double accuracy : entry.level_accuracies) csv += fmt::format(",{:.6f}", accuracy);
+    csv += '\n';
+  }
+  return csv;
+}
+
+bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed) {
+  const uint64_t hash = MixBits(MixBits(seed ^ kStreamHoldout) ^ MixBits(index));
+  return static_cast<double>(hash >> 11) * 0x1.0p-53 < fraction;
+}
+
+std::vector<uint32_t> HeldOutObservations(const Scene& scene, double fraction, uint64_t seed) {
+  std::vector<uint32_t> held_out;
+  for (uint32_t i = 0; i < scene.NumObservations(); ++i) {
+    if (IsHeldOutObservation(i, fraction, seed)) held_out.push_back(i);
+  }
+  return held_out;
+}
+
+TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
+                            const TrainerOptions& options) {
+  options.Check();
+  if (tree.NumPoints() != scene.NumPoints()) {
+    ThrowInvalidArgument("train: label tree of {} points, scene of {}", tree.NumPoints(),
+                         scene.NumPoints());
+  }
+  std::vector<uint32_t> training;
+  for (uint32_t i = 0; i < scene.NumObservations(); ++i) {
+    if (!IsHeldOutObservation(i, options.holdout_fraction, options.holdout_seed)) {
+      training.push_back(i);
+    }
+  }
+  if (training.empty()) ThrowInvalidArgument("train: the scene has no training observations");
+  const size_t num_training = training.size();
+  const size_t num_held_out = scene.NumObservations() - num_training;
+
+  SetComputeThreads(options.num_threads);
+  const torch::Device device = TorchDevice(options.device);
+  const NetworkShape shape{static_cast<int>(scene.Dimension()), tree.levels(), tree.branching(),
+                           static_cast<int>(scene.NumImages())};
+  const int levels = shape.levels;
+
+  TrainingState state;
+  std::optional<Network> network;
+  torch::serialize::InputArchive checkpoint;
+  const std::string checkpoint_source = options.checkpoint_path.string();
+  const bool resuming = options.resume && !options.checkpoint_path.empty() &&
+                        std::filesystem::exists(options.checkpoint_path);
+  if (resuming) {
+    try {
+      checkpoint.load_from(checkpoint_source, device);
+    } catch (const c10::Error& error) {
+      ThrowInvalidArgument("{}: not a training checkpoint: {}", checkpoint_source,
+                           error.what_without_backtrace());
+    }
+    if (ReadScalar(checkpoint, "checkpoint_version", checkpoint_source) != kCheckpointVersion) {
+      ThrowInvalidArgument("{}: checkpoint of another version", checkpoint_source);
+    }
+    torch::serialize::InputArchive network_archive;
+    if (!checkpoint.try_read("network", network_archive)) {
+      ThrowInvalidArgument("{}: checkpoint without a network", checkpoint_source);
+    }
+    network.emplace(NetworkInternals::LoadFrom(network_archive, checkpoint_source, options.device));
+    if (!(network->shape() == shape) || !(network->options() == options.network)) {
+      ThrowInvalidArgument("{}: the checkpoint's network has another shape or other options",
+                           checkpoint_source);
+    }
+    if (ReadScalar(checkpoint, "seed", checkpoint_source) != static_cast<int64_t>(options.seed)) {
+      spdlog::warn("{}: resuming with another seed than the checkpoint was trained with",
+                   checkpoint_source);
+    }
+    state.iteration = ReadScalar(checkpoint, "iteration", checkpoint_source);
+    torch::Tensor seconds;
+    torch::Tensor log;
+    checkpoint.read("seconds", seconds);
+    checkpoint.read("log", log);
+    state.seconds_before = seconds.to(torch::kCPU).item<double>();
+    state.log = LogFromTensor(log, levels);
+    spdlog::info("resuming from {} at iteration {}", checkpoint_source, state.iteration);
+  } else {
+    network.emplace(shape, options.network, options.seed);
+    network->SetDevice(options.device);
+  }
+
+  HscNet& module = NetworkInternals::Module(*network);
+  module->train();
+  torch::optim::Adam optimizer(module->parameters(),
+                               torch::optim::AdamOptions(options.learning_rate));
+  if (resuming) {
+    torch::serialize::InputArchive optimizer_archive;
+    if (!checkpoint.try_read("optimizer", optimizer_archive)) {
+      ThrowInvalidArgument("{}: checkpoint without optimizer state", checkpoint_source);
+    }
+    optimizer.load(optimizer_archive);
+  }
+
+  SampleOrder order(std::move(training), options.seed);
+  const double max_seconds = options.max_minutes * 60;
+  const int64_t max_iterations =
+      options.max_iterations > 0 ? options.max_iterations : std::numeric_limits<int64_t>::max();
+  const auto progress_of = [&](int64_t iteration, double seconds) {
+    double progress = 0;
+    if (options.max_iterations > 0) {
+      progress = static_cast<double>(iteration) / static_cast<double>(options.max_iterations);
+    }
+    if (max_seconds > 0) progress = std::max(progress, seconds / max_seconds);
+    return progress;
+  };
+
+  ProgressBar progress(
+      "train", options.max_iterations > 0 ? options.max_iterations : 0,
+      options.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
+  progress.Advance(static_cast<uint64_t>(std::min(state.iteration, max_iterations)));
+  Timer timer;
+  const auto elapsed = [&] { return state.seconds_before + timer.ElapsedSeconds(); };
+  // Sums since the last log entry, kept on the device so that no iteration waits for a copy.
+  torch::Tensor sums = torch::zeros({1 + levels}, torch::TensorOptions().device(device));
+  int64_t iterations_in_sums = 0;
+  double learning_rate = ScheduledLearningRate(options, progress_of(state.iteration, elapsed()));
+
+  const auto flush_log = [&](int64_t iteration) {
+    if (iterations_in_sums == 0) return;
+    const torch::Tensor means = (sums / static_cast<double>(iterations_in_sums)).to(torch::kCPU);
+    TrainingLogEntry entry{iteration, elapsed(), learning_rate, means[0].item<double>(), {}};
+    for (int level = 0; level < levels; ++level) {
+      entry.level_accuracies.push_back(means[1 + level].item<double>());
+    }
+    progress.SetStatus(
+        fmt::format("loss {:.3f} acc {}", entry.loss, FormatAccuracies(entry.level_accuracies)));
+    state.log.push_back(std::move(entry));
+    sums.zero_();
+    iterations_in_sums = 0;
+  };
+
+  while (state.iteration < max_iterations && !(max_seconds > 0 && elapsed() >= max_seconds)) {
+    learning_rate = ScheduledLearningRate(options, progress_of(state.iteration, elapsed()));
+    SetLearningRate(optimizer, learning_rate);
+    const Batch batch = MakeBatch(scene, tree, options, order, state.iteration, device);
+    const std::vector<torch::Tensor> logits =
+        module->forward(NormalizeRows(batch.descriptors), batch.images, batch.labels);
+    torch::Tensor loss = torch::zeros({}, torch::TensorOptions().device(device));
+    std::vector<torch::Tensor> statistics;
+    for (int level = 0; level < levels; ++level) {
+      const torch::Tensor target = batch.labels.select(1, level);
+      loss = loss + torch::nn::functional::cross_entropy(logits[level], target);
+      statistics.push_back(logits[level].detach().argmax(1).eq(target).to(torch::kFloat32).mean());
+    }
+    optimizer.zero_grad();
+    loss.backward();
+    optimizer.step();
+    statistics.insert(statistics.begin(), loss.detach());
+    sums += torch::stack(statistics);
+    ++iterations_in_sums;
+    ++state.iteration;
+    progress.Advance();
+    if (state.iteration % options.log_every_iterations == 0) flush_log(state.iteration);
+    if (!options.checkpoint_path.empty() &&
+        state.iteration % options.checkpoint_every_iterations == 0) {
+      state.seconds_before = elapsed();
+      timer.Restart();
+      SaveCheckpoint(options.checkpoint_path, *network, optimizer, state, options);
+    }
+  }
+  flush_log(state.iteration);
+  progress.Finish();
+  state.seconds_before = elapsed();
+  timer.Restart();
+  if (!options.checkpoint_path.empty()) {
+    SaveCheckpoint(options.checkpoint_path, *network, optimizer, state, options);
+  }
+  module->eval();
+
+  TrainingResult result{std::move(*network), state.iteration, state.seconds_before, 0, {},
+                        num_training,        num_held_out,    std::move(state.log)};
+  if (!result.log.empty()) {
+    result.final_loss = result.log.back().loss;
+    result.final_level_accuracies = result.log.back().level_accuracies;
+  }
+  return result;
+}
+
+NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, const LabelTree& tree,
+                                  const std::vector<uint32_t>& observation_indices,
+                                  const Visibility* visibility_mask) {
+  Timer timer;
+  const int levels = tree.levels();
+  std::vector<std::vector<uint32_t>> by_image(scene.NumImages());
+  for (const uint32_t observation : observation_indices) {
+    THROW_CHECK_LT(size_t{observation}, scene.NumObservations());
+    by_image[scene.observation_image_indices[observation]].push_back(observation);
+  }
+  NetworkEvaluation evaluation;
+  evaluation.num_observations = observation_indices.size();
+  std::vector<size_t> correct_levels(levels, 0);
+  size_t correct_points = 0;
+  for (uint32_t image = 0; image < by_image.size(); ++image) {
+    const std::vector<uint32_t>& observations = by_image[image];
+    if (observations.empty()) continue;
+    DescriptorMatrix descriptors(observations.size(), scene.Dimension());
+    for (size_t i = 0; i < observations.size(); ++i) {
+      descriptors.row(i) = scene.observation_descriptors.row(observations[i]);
+    }
+    const PointPredictions predictions =
+        network.Predict(descriptors, {image}, tree, visibility_mask);
+    for (size_t i = 0; i < observations.size(); ++i) {
+      const uint32_t point = scene.observation_point_indices[observations[i]];
+      const LabelTree::Label* truth = tree.LabelsOfPoint(point);
+      for (int level = 0; level < levels && predictions.labels(i, level) == truth[level]; ++level) {
+        ++correct_levels[level];
+      }
+      if (predictions.point_indices(0, i) == point) ++correct_points;
+    }
+  }
+  const double count = std::max<double>(1, evaluation.num_observations);
+  for (const size_t correct : correct_levels)
+    evaluation.level_accuracies.push_back(correct / count);
+  evaluation.leaf_accuracy = correct_points / count;
+  evaluation.seconds = timer.ElapsedSeconds();
+  return evaluation;
+}
+
+void WriteNetworkToBundle(
+    const std::filesystem::path& bundle_dir, const TrainingResult& result,
+    const TrainerOptions& options,
+    const std::vector<std::pair<std::string, NetworkEvaluation>>& evaluations) {
+  MapBundleWriter writer = MapBundleWriter::Update(bundle_dir);
+  writer.AddBlob(network_blobs::kNetwork,
+                 [&](std::ostream& stream) { result.network.Save(stream); });
+  const std::string csv = result.LogCsv();
+  writer.AddBlob(network_blobs::kTrainingLog,
+                 [&](std::ostream& stream) { stream.write(csv.data(), csv.size()); });
+
+  const NetworkShape& shape = result.network.shape();
+  const NetworkOptions& network_options = result.network.options();
+  nlohmann::json json;
+  json["shape"] = {{"descriptor_dim", shape.descriptor_dim},
+                   {"levels", shape.levels},
+                   {"branching", shape.branching},
+                   {"num_images", shape.num_images}};
+  json["options"] = {{"channels", network_options.channels},
+                     {"embedding_dim", network_options.embedding_dim},
+                     {"conditioned_layers", network_options.conditioned_layers}};
+  json["parameters"] = result.network.NumParameters();
+  json["training"] = {{"iterations", result.iterations},
+                      {"seconds", result.seconds},
+                      {"final_loss", result.final_loss},
+                      {"final_level_accuracies", result.final_level_accuracies},
+                      {"batch_size", options.batch_size},
+                      {"learning_rate", options.learning_rate},
+                      {"halving_fractions", options.halving_fractions},
+                      {"augmentation",
+                       {{"enabled", options.augmentation.enabled},
+                        {"noise_norm", options.augmentation.noise_norm},
+                        {"dimension_dropout", options.augmentation.dimension_dropout}}},
+                      {"image_dropout", options.image_dropout},
+                      {"seed", options.seed},
+                      {"holdout_fraction", options.holdout_fraction},
+                      {"holdout_seed", options.holdout_seed},
+                      {"training_observations", result.num_training_observations},
+                      {"held_out_observations", result.num_held_out_observations},
+                      {"device", ComputeDeviceName(options.device)}};
+  nlohmann::json evaluation_json = nlohmann::json::object();
+  for (const auto& [name, evaluation] : evaluations) {
+    evaluation_json[name] = {{"observations", evaluation.num_observations},
+                             {"level_accuracies", evaluation.level_accuracies},
+                             {"leaf_accuracy", evaluation.leaf_accuracy}};
+  }
+  json["evaluations"] = evaluation_json;
+  writer.metadata()["network"] = json;
+  writer.Commit();
+}
+
+}  // namespace hscloc

@@ -1,0 +1,131 @@
+// Training and evaluation of the hierarchical classification network (model/network.h) on a
+// map's observations, as in Li et al., CVPR 2020 (classification-only variant): every observation
+// (descriptor, database image, observed point) is a sample whose targets are the point's label
+// path; the generators see the ground-truth coarser labels and the observation's own image
+// (teacher forcing); the loss is the sum of the per-level cross-entropies; Adam with the learning
+// rate halved late in training.
+//
+// Determinism: the data order and the augmentation are drawn from counter-based random streams
+// addressed by (seed, iteration, row), and the weights are initialized from the seed, so the same
+// scene, options, seed, device and thread count give bit-identical weights, and a run resumed
+// from a checkpoint continues exactly as the uninterrupted run would have. A time budget makes the
+// number of iterations (and the learning-rate schedule) depend on the machine.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "model/label_tree.h"
+#include "model/network.h"
+#include "model/scene.h"
+#include "model/visibility.h"
+
+namespace hscloc {
+
+// Noise in descriptor space, so that the network sees descriptors as they vary between views
+// (lighting, viewpoint, night) rather than the few it was given per point.
+struct DescriptorAugmentationOptions {
+  bool enabled = true;
+  // Expected L2 norm of the isotropic Gaussian noise added to the unit descriptor.
+  double noise_norm = 0.3;
+  // Probability of zeroing each descriptor dimension (before renormalizing).
+  double dimension_dropout = 0.1;
+  void Check() const;
+};
+
+struct TrainerOptions {
+  NetworkOptions network;
+  // Budgets: training stops at whichever is reached first; 0 disables one (not both).
+  int64_t max_iterations = 30000;
+  double max_minutes = 0;
+  // Observations per step: on CPU, batches of 1024 train 3.4 times as many observations per second
+  // as 256 (docs/decisions.md).
+  int batch_size = 1024;
+  double learning_rate = 3e-3;  // Adam (docs/decisions.md)
+  // Fractions of the budget at which the learning rate halves.
+  std::vector<double> halving_fractions = {0.5, 0.75, 0.9};
+  DescriptorAugmentationOptions augmentation;
+  // Probability of replacing a sample's image by the "no image" index, so that the network also
+  // learns to classify without an image (the id-free ablation).
+  double image_dropout = 0;
+  // Fraction of observations held out from training (deterministic in holdout_seed), for
+  // EvaluateNetwork on data the network never saw.
+  double holdout_fraction = 0.05;
+  uint64_t holdout_seed = 0;
+  uint64_t seed = 0;
+  int num_threads = 0;  // <= 0: all cores
+  ComputeDevice device = ComputeDevice::kCpu;
+  // Checkpoint file (network, optimizer state, iteration, log); empty: no checkpoints.
+  std::filesystem::path checkpoint_path;
+  int64_t checkpoint_every_iterations = 2000;
+  // Continue from checkpoint_path when it exists.
+  bool resume = false;
+  int64_t log_every_iterations = 100;
+  bool show_progress = true;
+  void Check() const;
+};
+
+// Means over the iterations since the previous entry; accuracies are teacher-forced (each level
+// given the true coarser labels) on the augmented training batches.
+struct TrainingLogEntry {
+  int64_t iteration = 0;
+  double seconds = 0;
+  double learning_rate = 0;
+  double loss = 0;
+  std::vector<double> level_accuracies;
+};
+
+struct TrainingResult {
+  Network network;
+  int64_t iterations = 0;
+  double seconds = 0;  // including the time before a resume
+  double final_loss = 0;
+  std::vector<double> final_level_accuracies;
+  size_t num_training_observations = 0;
+  size_t num_held_out_observations = 0;
+  std::vector<TrainingLogEntry> log;
+
+  // "iteration,seconds,learning_rate,loss,accuracy_level1,..." and one line per entry.
+  std::string LogCsv() const;
+};
+
+// Whether observation `index` belongs to the held-out fraction (a hash of index and seed).
+bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed);
+// The held-out observation indices of a scene, ascending.
+std::vector<uint32_t> HeldOutObservations(const Scene& scene, double fraction, uint64_t seed);
+
+// Trains a network on the scene's observations that are not held out. Throws
+// std::invalid_argument when the options are invalid, the tree does not match the scene, or a
+// checkpoint to resume from belongs to another shape or options.
+TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
+                            const TrainerOptions& options);
+
+struct NetworkEvaluation {
+  size_t num_observations = 0;
+  // Share of observations whose predicted label path is right up to level j (index j - 1),
+  // each level conditioned on the labels predicted before it.
+  std::vector<double> level_accuracies;
+  // Share of observations whose predicted point is the observed point.
+  double leaf_accuracy = 0;
+  double seconds = 0;
+};
+
+// Predicts the observations' points, each conditioned on its own image (masked by the image's
+// visibility lists when `visibility_mask` is given).
+NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, const LabelTree& tree,
+                                  const std::vector<uint32_t>& observation_indices,
+                                  const Visibility* visibility_mask = nullptr);
+
+// Adds the network (network_blobs::kNetwork), the training log (network_blobs::kTrainingLog) and
+// metadata "network" (shape, options, training summary, and the evaluations given) to an existing
+// map bundle, atomically.
+void WriteNetworkToBundle(
+    const std::filesystem::path& bundle_dir, const TrainingResult& result,
+    const TrainerOptions& options,
+    const std::vector<std::pair<std::string, NetworkEvaluation>>& evaluations = {});
+
+}  // namespace hscloc

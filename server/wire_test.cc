@@ -1,0 +1,90 @@
+#include "server/wire.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "client/localization_client.h"
+#include "util/random.h"
+#include "util/testing.h"
+
+namespace hscloc {
+namespace {
+
+using ::testing::HasSubstr;
+
+wire::LocalizeRequest SmallRequest(bool float16, Random& random) {
+  std::vector<float> keypoints;
+  std::vector<float> descriptors;
+  for (int i = 0; i < 10; ++i) {
+    keypoints.push_back(static_cast<float>(random.Uniform(1, 600)));
+    keypoints.push_back(static_cast<float>(random.Uniform(1, 400)));
+    for (int j = 0; j < 8; ++j) descriptors.push_back(static_cast<float>(random.Normal()));
+  }
+  return MakeLocalizeRequest("q.jpg", ParseCamera("SIMPLE_RADIAL 640 480 500 320 240 0.01"),
+                             keypoints, descriptors, 8, float16);
+}
+
+TEST(WireTest, Float16DescriptorsDecodeWithinHalfPrecision) {
+  Random random(5);
+  std::vector<float> descriptors(10 * 8);
+  for (float& value : descriptors) value = static_cast<float>(random.Normal());
+  const wire::LocalizeRequest request =
+      MakeLocalizeRequest("q.jpg", ParseCamera("PINHOLE 640 480 500 500 320 240"),
+                          std::vector<float>(20, 10.0f), descriptors, 8, true);
+  const LocalizationQuery query = QueryFromWire(request, WireLimits());
+  for (size_t i = 0; i < descriptors.size(); ++i) {
+    // Round to nearest with 11 significant bits: a relative error of at most 2^-11.
+    EXPECT_NEAR(query.descriptors.data()[i], descriptors[i], std::abs(descriptors[i]) / 2048 + 1e-7)
+        << i;
+  }
+}
+
+TEST(WireTest, QueryRoundTripsFromTheClientsPacking) {
+  Random random(3);
+  for (const bool float16 : {false, true}) {
+    const wire::LocalizeRequest request = SmallRequest(float16, random);
+    const LocalizationQuery query = QueryFromWire(request, WireLimits());
+    EXPECT_EQ(query.name, "q.jpg");
+    EXPECT_EQ(query.camera.model_id, CameraModelIdFromName("SIMPLE_RADIAL"));
+    ASSERT_EQ(query.keypoints.rows(), 10);
+    ASSERT_EQ(query.descriptors.cols(), 8);
+    EXPECT_EQ(std::memcmp(query.keypoints.data(), request.keypoints().data(), 80), 0);
+    if (!float16) {
+      EXPECT_EQ(std::memcmp(query.descriptors.data(), request.descriptors().data(), 320), 0);
+    }
+    EXPECT_FALSE(query.global_descriptor.has_value());
+  }
+}
+
+TEST(WireTest, EveryInconsistentFieldIsNamed) {
+  Random random(4);
+  const wire::LocalizeRequest good = SmallRequest(false, random);
+  const auto message = [&](const std::function<void(wire::LocalizeRequest&)>& corrupt) {
+    wire::LocalizeRequest request = good;
+    corrupt(request);
+    return testing::InvalidArgumentMessage([&] { QueryFromWire(request, WireLimits()); });
+  };
+  EXPECT_THAT(message([](auto& r) { r.set_num_keypoints(11); }), HasSubstr("keypoints hold 80"));
+  EXPECT_THAT(message([](auto& r) { r.set_num_keypoints(20001); }), HasSubstr("limit of 20000"));
+  EXPECT_THAT(message([](auto& r) { r.set_descriptor_dim(0); }), HasSubstr("descriptor_dim 0"));
+  EXPECT_THAT(message([](auto& r) { r.set_descriptor_dim(7); }), HasSubstr("descriptors hold"));
+  EXPECT_THAT(message([](auto& r) { r.set_descriptor_type(static_cast<wire::DescriptorType>(9)); }),
+              HasSubstr("descriptor_type 9"));
+  EXPECT_THAT(message([](auto& r) { r.mutable_camera()->set_model("NOPE"); }), HasSubstr("camera"));
+  EXPECT_THAT(message([](auto& r) { r.mutable_camera()->clear_params(); }), HasSubstr("camera"));
+
+  wire::LocalizeOptions overrides;
+  overrides.set_top_k(3);
+  overrides.set_exhaustive(false);
+  const LocalizerOptions options = OptionsFromWire(overrides, LocalizerOptions(), WireLimits());
+  EXPECT_EQ(options.top_k, 3);
+  EXPECT_FALSE(options.exhaustive);
+  EXPECT_TRUE(options.visibility_filter);
+  overrides.set_top_k(1000);
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { OptionsFromWire(overrides, LocalizerOptions(), WireLimits()); }),
+              HasSubstr("top_k = 1000"));
+}
+
+}  // namespace
+}  // namespace hscloc

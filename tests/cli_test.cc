@@ -1,0 +1,143 @@
+// The command-line tool end to end on the trained small city of the test fixture: localize a
+// query list offline, resume an interrupted run, evaluate the submission.
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <sstream>
+
+#include "model/query_io.h"
+#include "util/testing.h"
+
+namespace hscloc {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+
+std::string ReadText(const fs::path& path) {
+  std::ifstream file(path);
+  std::stringstream text;
+  text << file.rdbuf();
+  return text.str();
+}
+
+// Runs `hscloc ARGUMENTS`, returning its exit status; its output goes to `log`.
+int Hscloc(const std::string& arguments, const fs::path& log) {
+  return testing::RunCommand(fmt::format("{} {}", HSCLOC_BINARY, arguments), log.string());
+}
+
+class CliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto dir = testing::TrainedSmallCityDir();
+    if (!dir) {
+      GTEST_SKIP() << "the trained small city is missing: run the tests through ctest, whose "
+                      "fixture.trained_small_city builds it";
+    }
+    city_ = *dir / "city";
+    map_ = *dir / "map";
+  }
+  std::string DayList() const {
+    return (city_ / "queries" / "day_time_queries_with_intrinsics.txt").string();
+  }
+  std::string NightList() const {
+    return (city_ / "queries" / "night_time_queries_with_intrinsics.txt").string();
+  }
+  std::string Features() const { return (city_ / "features.h5").string(); }
+  std::string GroundTruth() const { return (city_ / "queries_gt.txt").string(); }
+  std::string Map() const { return map_.string(); }
+  std::string Temp(const std::string& name) const { return (temp_ / name).string(); }
+
+  fs::path city_;
+  fs::path map_;
+  testing::TempDir temp_;
+};
+
+TEST_F(CliTest, LocalizeResumeAndEvaluate) {
+  // A first run over the day queries only, then a resumed run over day and night: the day lines
+  // stay, the night ones are added, and a half-written line from an interruption is dropped.
+  const std::string submission = Temp("out/submission.txt");
+  ASSERT_EQ(Hscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
+                               DayList(), Features(), submission),
+                   temp_ / "day.log"),
+            0)
+      << ReadText(temp_ / "day.log");
+  EXPECT_THAT(ReadText(temp_ / "day.log"), HasSubstr("localized"));
+  const std::vector<NamedPose> day = ReadPoses(submission);
+  ASSERT_EQ(day.size(), ReadQueryList(DayList()).size());
+  for (const NamedPose& pose : day) EXPECT_EQ(pose.name.find('/'), std::string::npos);
+  std::ofstream(submission, std::ios::app) << "day_00049.jpg 0.1 0.2";  // interrupted mid-line
+
+  ASSERT_EQ(Hscloc(fmt::format("localize --map {} --queries {} --queries {} --features {} --out {} "
+                               "--resume",
+                               Map(), DayList(), NightList(), Features(), submission),
+                   temp_ / "resume.log"),
+            0)
+      << ReadText(temp_ / "resume.log");
+  EXPECT_THAT(ReadText(temp_ / "resume.log"), HasSubstr("resuming: 50 of 100 queries"));
+  const std::vector<NamedPose> all = ReadPoses(submission);
+  ASSERT_EQ(all.size(), 100u);
+  for (size_t i = 0; i < day.size(); ++i) {
+    EXPECT_EQ(all[i].name, day[i].name);
+    EXPECT_EQ(all[i].cam_from_world.translation, day[i].cam_from_world.translation);
+  }
+
+  const std::string plot = Temp("errors.svg");
+  ASSERT_EQ(Hscloc(fmt::format("eval --gt {} --results {} --conditions day:{},night:{} --plot {}",
+                               GroundTruth(), submission, DayList(), NightList(), plot),
+                   temp_ / "eval.log"),
+            0)
+      << ReadText(temp_ / "eval.log");
+  const std::string table = ReadText(temp_ / "eval.log");
+  std::cout << table;
+  EXPECT_THAT(table, HasSubstr("(0.25 m, 2 deg)"));
+  EXPECT_THAT(table, HasSubstr("day"));
+  EXPECT_THAT(table, HasSubstr("night"));
+  EXPECT_THAT(ReadText(plot), HasSubstr("<svg"));
+  // Day queries of the small city: at least 90% within (0.25 m, 2 deg).
+  std::istringstream lines(table);
+  std::string line;
+  bool found_day = false;
+  while (std::getline(lines, line)) {
+    if (line.rfind("day", 0) != 0) continue;
+    found_day = true;
+    std::istringstream fields(line);
+    std::string condition;
+    int queries = 0;
+    double fine = 0;
+    fields >> condition >> queries >> fine;
+    EXPECT_EQ(queries, 50);
+    EXPECT_GE(fine, 90.0) << line;
+  }
+  EXPECT_TRUE(found_day);
+}
+
+TEST_F(CliTest, BadInputsFailWithAClearMessage) {
+  const std::string bad_list = Temp("bad.txt");
+  std::ofstream(bad_list) << "query/day/day_00000.jpg NO_SUCH_MODEL 10 10 1 2 3\n";
+  EXPECT_NE(Hscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
+                               bad_list, Features(), Temp("s.txt")),
+                   temp_ / "bad.log"),
+            0);
+  EXPECT_THAT(ReadText(temp_ / "bad.log"), HasSubstr("bad.txt:1"));
+
+  const std::string unknown = Temp("unknown.txt");
+  std::ofstream(unknown) << "nowhere.jpg PINHOLE 640 480 500 500 320 240\n";
+  EXPECT_NE(Hscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
+                               unknown, Features(), Temp("s.txt")),
+                   temp_ / "unknown.log"),
+            0);
+  EXPECT_THAT(ReadText(temp_ / "unknown.log"), HasSubstr("no features for query 'nowhere.jpg'"));
+
+  const std::string results = Temp("results.txt");
+  std::ofstream(results) << "stranger.jpg 1 0 0 0 0 0 0\n";
+  EXPECT_NE(
+      Hscloc(fmt::format("eval --gt {} --results {}", GroundTruth(), results), temp_ / "eval.log"),
+      0);
+  EXPECT_THAT(ReadText(temp_ / "eval.log"), HasSubstr("'stranger.jpg' is not a query"));
+}
+
+}  // namespace
+}  // namespace hscloc

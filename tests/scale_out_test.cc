@@ -1,0 +1,123 @@
+// Broker mode end to end: a broker, two `hscloc serve --connect` worker processes, clients with
+// requests in flight, and one worker killed under load; no request may be lost.
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <thread>
+
+#include "client/localization_client.h"
+#include "model/feature_io.h"
+#include "model/query_io.h"
+#include "server/broker.h"
+#include "util/testing.h"
+
+namespace hscloc {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A child process running `hscloc serve --connect BACKEND`, killed with SIGKILL unless stopped.
+class WorkerProcess {
+ public:
+  WorkerProcess(const fs::path& map, const std::string& backend, const fs::path& log) {
+    pid_ = fork();
+    if (pid_ == 0) {
+      const std::string log_path = log.string();
+      freopen(log_path.c_str(), "w", stdout);
+      freopen(log_path.c_str(), "a", stderr);
+      execl(HSCLOC_BINARY, HSCLOC_BINARY, "serve", "--map", map.c_str(), "--connect",
+            backend.c_str(), "--workers", "1", static_cast<char*>(nullptr));
+      _exit(127);
+    }
+  }
+  ~WorkerProcess() { Kill(); }
+  void Kill() {
+    if (pid_ <= 0) return;
+    kill(pid_, SIGKILL);
+    waitpid(pid_, nullptr, 0);
+    pid_ = -1;
+  }
+  // SIGTERM, then the exit status.
+  int Terminate() {
+    kill(pid_, SIGTERM);
+    int status = 0;
+    waitpid(pid_, &status, 0);
+    pid_ = -1;
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  }
+
+ private:
+  pid_t pid_ = -1;
+};
+
+TEST(ScaleOutTest, AKilledWorkerLosesNoRequest) {
+  HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
+  testing::TempDir temp;
+  BrokerOptions options;
+  options.front = "tcp://127.0.0.1:0";
+  options.back = "tcp://127.0.0.1:0";
+  options.heartbeat_interval = std::chrono::milliseconds(200);
+  Broker broker(options);
+  const auto [front, back] = broker.Start();
+  WorkerProcess first(dir / "map", back, temp / "worker1.log");
+  WorkerProcess second(dir / "map", back, temp / "worker2.log");
+
+  std::vector<wire::LocalizeRequest> requests;
+  const auto features = OpenH5Features(dir / "city" / "features.h5");
+  for (const QueryWithIntrinsics& query :
+       ReadQueryList(dir / "city" / "queries" / "day_time_queries_with_intrinsics.txt")) {
+    const ImageFeatures image = features->Read(query.name);
+    wire::Camera camera;
+    camera.set_model(CameraModelName(query.camera.model_id));
+    camera.set_width(static_cast<uint32_t>(query.camera.width));
+    camera.set_height(static_cast<uint32_t>(query.camera.height));
+    for (const double param : query.camera.params) camera.add_params(param);
+    requests.push_back(MakeLocalizeRequest(
+        query.name, camera,
+        std::vector<float>(image.keypoints.data(), image.keypoints.data() + image.keypoints.size()),
+        std::vector<float>(image.descriptors.data(),
+                           image.descriptors.data() + image.descriptors.size()),
+        static_cast<uint32_t>(image.Dimension()), true));
+    requests.back().mutable_options()->set_top_k(3);
+    if (requests.size() == 30) break;
+  }
+
+  // Both workers load the map and announce themselves; the first request waits for them.
+  ClientOptions client_options;
+  client_options.server = front;
+  client_options.timeout_ms = 120000;
+  client_options.retries = 0;
+  std::atomic<size_t> next{0};
+  std::atomic<size_t> localized{0};
+  std::atomic<size_t> answered{0};
+  std::vector<std::thread> clients;
+  for (int c = 0; c < 4; ++c) {
+    clients.emplace_back([&] {
+      LocalizationClient client(client_options);
+      for (size_t i = next++; i < requests.size(); i = next++) {
+        const wire::LocalizeResponse response = client.Localize(requests[i]);
+        ++answered;
+        localized +=
+            response.status() == wire::OK && response.request_id() == requests[i].request_id();
+      }
+    });
+  }
+  // Kill one worker once work is under way.
+  while (answered < 6) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  first.Kill();
+  for (std::thread& client : clients) client.join();
+  EXPECT_EQ(answered.load(), requests.size());
+  EXPECT_EQ(localized.load(), requests.size());
+  EXPECT_EQ(broker.workers_dropped(), 1u);
+  std::cout << fmt::format("{} requests answered; the broker retried {} after the kill\n",
+                           answered.load(), broker.requests_retried());
+  EXPECT_EQ(second.Terminate(), 0);
+  broker.Stop();
+}
+
+}  // namespace
+}  // namespace hscloc

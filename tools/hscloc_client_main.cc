@@ -1,0 +1,246 @@
+// hscloc-client: sends queries to an hscloc server. Links the client library, protobuf, ZeroMQ,
+// OpenCV and the feature readers, never libtorch, FAISS or Ceres (a test checks its libraries).
+#include <fmt/format.h>
+
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <mutex>
+#include <thread>
+
+#include "client/feature_extraction.h"
+#include "client/localization_client.h"
+#include "model/feature_io.h"
+#include "model/query_io.h"
+#include "util/progress_bar.h"
+#include "util/timer.h"
+
+namespace hscloc {
+namespace {
+
+std::string FormatCamera(const Camera& camera) {
+  std::string text =
+      fmt::format("{} {} {}", CameraModelName(camera.model_id), camera.width, camera.height);
+  for (const double param : camera.params) text += fmt::format(" {}", param);
+  return text;
+}
+
+wire::LocalizeRequest RequestFromFeatures(const std::string& name, const wire::Camera& camera,
+                                          const ImageFeatures& features, bool float16) {
+  const std::vector<float> keypoints(features.keypoints.data(),
+                                     features.keypoints.data() + features.keypoints.size());
+  const std::vector<float> descriptors(features.descriptors.data(),
+                                       features.descriptors.data() + features.descriptors.size());
+  return MakeLocalizeRequest(name, camera, keypoints, descriptors,
+                             static_cast<uint32_t>(features.Dimension()), float16);
+}
+
+Rigid3d PoseOf(const wire::Pose& pose) {
+  return Rigid3d(Eigen::Quaterniond(pose.qw(), pose.qx(), pose.qy(), pose.qz()).normalized(),
+                 Eigen::Vector3d(pose.tx(), pose.ty(), pose.tz()));
+}
+
+void PrintResponse(const wire::LocalizeResponse& response) {
+  std::cout << fmt::format(
+      "{}: {}{}\n", response.request_id(), wire::Status_Name(response.status()),
+      response.error_message().empty() ? "" : " (" + response.error_message() + ")");
+  if (response.status() == wire::OK || response.status() == wire::NOT_LOCALIZED) {
+    const wire::Pose& pose = response.cam_from_world();
+    std::cout << fmt::format(
+        "  cam_from_world  q {:.6f} {:.6f} {:.6f} {:.6f}  t {:.4f} {:.4f} {:.4f}\n"
+        "  inliers {}  retrieved image {} ({})\n",
+        pose.qw(), pose.qx(), pose.qy(), pose.qz(), pose.tx(), pose.ty(), pose.tz(),
+        response.num_inliers(), response.retrieved_image_name(), response.retrieved_image_id());
+    const wire::StageTimings& t = response.timings();
+    std::cout << fmt::format(
+        "  ms: retrieval {:.1f}, matching {:.1f}, visibility {:.1f}, pose {:.1f}, localizer "
+        "{:.1f}, "
+        "server {:.1f}\n",
+        t.retrieval_ms(), t.matching_ms(), t.visibility_ms(), t.pose_ms(), t.total_ms(),
+        t.server_ms());
+  }
+}
+
+struct CommonArguments {
+  ClientOptions client;
+  std::string curve_server_key_file;
+  bool float16 = true;
+};
+
+void ResolveKeys(CommonArguments& common) {
+  if (common.curve_server_key_file.empty()) return;
+  std::ifstream file(common.curve_server_key_file);
+  std::string key;
+  if (!file || !std::getline(file, key) || key.size() < 40) {
+    throw std::invalid_argument("cannot read a Z85 key from " + common.curve_server_key_file);
+  }
+  common.client.curve_server_key = key.substr(0, 40);
+}
+
+int RunBatch(CommonArguments& common, const std::vector<std::string>& lists,
+             const std::string& features_path, const std::string& out, int inflight) {
+  ResolveKeys(common);
+  std::vector<QueryWithIntrinsics> queries;
+  for (const std::string& list : lists) {
+    for (QueryWithIntrinsics& query : ReadQueryList(list)) queries.push_back(std::move(query));
+  }
+  const std::unique_ptr<FeatureReader> features = OpenFeatureReader(features_path);
+  std::ofstream submission(out);
+  std::ofstream failures(out + ".failures.txt");
+  if (!submission || !failures) throw std::invalid_argument("cannot write " + out);
+  ProgressBar progress("batch", queries.size());
+  std::mutex mutex;
+  std::atomic<size_t> next{0};
+  size_t localized = 0;
+  size_t failed = 0;
+  std::exception_ptr error;
+  Timer timer;
+  const auto worker = [&] {
+    try {
+      LocalizationClient client(common.client);
+      for (size_t i = next++; i < queries.size(); i = next++) {
+        const QueryWithIntrinsics& query = queries[i];
+        const wire::LocalizeRequest request =
+            RequestFromFeatures(query.name, ParseCamera(FormatCamera(query.camera)),
+                                features->Read(query.name), common.float16);
+        const wire::LocalizeResponse response = client.Localize(request);
+        std::lock_guard<std::mutex> lock(mutex);
+        const std::string basename = ImageBasename(query.name);
+        if (response.status() == wire::OK || response.status() == wire::NOT_LOCALIZED) {
+          // As `hscloc localize`: a failed query gets the top-1 retrieved image's pose.
+          submission << FormatPoseLine(basename, PoseOf(response.cam_from_world())) << std::flush;
+        }
+        if (response.status() == wire::OK) {
+          ++localized;
+        } else {
+          ++failed;
+          failures << basename << ' ' << wire::Status_Name(response.status()) << ' '
+                   << response.error_message() << '\n'
+                   << std::flush;
+        }
+        progress.SetStatus(fmt::format("{} localized, {} failed", localized, failed));
+        progress.Advance();
+      }
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (!error) error = std::current_exception();
+      next = queries.size();
+    }
+  };
+  std::vector<std::thread> threads;
+  for (int t = 0; t < std::max(1, inflight); ++t) threads.emplace_back(worker);
+  for (std::thread& thread : threads) thread.join();
+  progress.Finish();
+  if (error) std::rethrow_exception(error);
+  std::cout << fmt::format("localized {} of {} queries ({} failed) in {} with {} in flight\n",
+                           localized, queries.size(), failed,
+                           FormatDuration(timer.ElapsedSeconds()), inflight);
+  return failed == queries.size() && !queries.empty() ? 1 : 0;
+}
+
+}  // namespace
+}  // namespace hscloc
+
+int main(int argc, char** argv) {
+  using namespace hscloc;
+  CLI::App app{"hscloc-client: localize photos or features against an hscloc server"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "hscloc-client 0.1.0");
+  CommonArguments common;
+  app.add_option("--server", common.client.server, "Server endpoint")->capture_default_str();
+  app.add_option("--timeout-ms", common.client.timeout_ms, "Reply timeout per attempt")
+      ->capture_default_str();
+  app.add_option("--retries", common.client.retries, "Attempts after the first, on new sockets")
+      ->capture_default_str();
+  app.add_option("--curve-server-key", common.curve_server_key_file,
+                 "File with the server's CURVE public key (encrypted connection)");
+  std::function<int()> run;
+
+  CLI::App* query = app.add_subcommand("query", "Localize one photo or one image's features");
+  auto image = std::make_shared<std::string>();
+  auto features = std::make_shared<std::string>();
+  auto name = std::make_shared<std::string>();
+  auto camera = std::make_shared<std::string>();
+  query->add_option("--image", *image, "Photo: SIFT features are extracted here")
+      ->check(CLI::ExistingFile);
+  query->add_option("--features", *features, "Features file (.h5 or database.db)")
+      ->check(CLI::ExistingFile);
+  query->add_option("--name", *name, "Image name in --features (default: the photo's name)");
+  query->add_option("--camera", *camera, "\"MODEL WIDTH HEIGHT PARAMS...\"")->required();
+  query->callback([&] {
+    run = [&] {
+      ResolveKeys(common);
+      const wire::Camera wire_camera = ParseCamera(*camera);
+      wire::LocalizeRequest request;
+      if (!image->empty()) {
+        const ExtractedFeatures extracted = ExtractSift(*image);
+        request =
+            MakeLocalizeRequest(name->empty() ? *image : *name, wire_camera, extracted.keypoints_xy,
+                                extracted.descriptors, 128, common.float16);
+      } else if (!features->empty() && !name->empty()) {
+        request = RequestFromFeatures(*name, wire_camera, OpenFeatureReader(*features)->Read(*name),
+                                      common.float16);
+      } else {
+        throw std::invalid_argument("query: give --image, or --features with --name");
+      }
+      LocalizationClient client(common.client);
+      const wire::LocalizeResponse response = client.Localize(request);
+      PrintResponse(response);
+      return response.status() == wire::OK ? 0 : 1;
+    };
+  });
+
+  CLI::App* batch = app.add_subcommand("batch", "Localize a query list; write a submission file");
+  auto lists = std::make_shared<std::vector<std::string>>();
+  auto out = std::make_shared<std::string>();
+  auto inflight = std::make_shared<int>(16);
+  batch->add_option("--queries", *lists, "Query list(s): NAME MODEL WIDTH HEIGHT PARAMS...")
+      ->required()
+      ->check(CLI::ExistingFile);
+  batch->add_option("--features", *features, "Features file (.h5 or database.db)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  batch->add_option("--out", *out, "Submission file")->required();
+  batch->add_option("--inflight", *inflight, "Requests in flight")->capture_default_str();
+  batch->callback(
+      [&] { run = [&] { return RunBatch(common, *lists, *features, *out, *inflight); }; });
+
+  CLI::App* health = app.add_subcommand("health", "Ask the server whether it serves");
+  health->callback([&] {
+    run = [&] {
+      ResolveKeys(common);
+      LocalizationClient client(common.client);
+      const wire::HealthResponse response = client.Health();
+      std::cout << fmt::format("{} map {} up {:.0f} s, {} queued\n",
+                               wire::Status_Name(response.status()), response.map_id(),
+                               response.uptime_s(), response.queued_requests());
+      return response.status() == wire::OK ? 0 : 1;
+    };
+  });
+  CLI::App* info = app.add_subcommand("info", "Show the served map's description");
+  info->callback([&] {
+    run = [&] {
+      ResolveKeys(common);
+      LocalizationClient client(common.client);
+      std::cout << client.Info().DebugString();
+      return 0;
+    };
+  });
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& error) {
+    return app.exit(error);
+  }
+  try {
+    return run();
+  } catch (const std::invalid_argument& error) {
+    std::fprintf(stderr, "error: %s\n", error.what());
+    return 2;
+  } catch (const std::exception& error) {
+    std::fprintf(stderr, "failed: %s\n", error.what());
+    return 1;
+  }
+}

@@ -1,0 +1,182 @@
+#include <fmt/format.h>
+
+#include <iostream>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "model/map_bundle.h"
+#include "model/network.h"
+#include "model/trainer.h"
+#include "server/localization_map.h"
+#include "tools/commands.h"
+#include "util/timer.h"
+
+namespace hscloc {
+namespace {
+
+struct TrainArguments {
+  std::string map_dir;
+  std::string device = "cpu";
+  std::string checkpoint;
+  bool no_augment = false;
+  bool eval = false;
+  bool eval_only = false;
+  TrainerOptions options;
+};
+
+void PrintEvaluation(const std::string& name, const NetworkEvaluation& evaluation) {
+  std::string levels;
+  for (const double accuracy : evaluation.level_accuracies) {
+    levels += fmt::format(" {:6.2f}", 100 * accuracy);
+  }
+  std::cout << fmt::format("  {:<16}{:>9}  {} | {:6.2f}   ({})\n", name,
+                           evaluation.num_observations, levels, 100 * evaluation.leaf_accuracy,
+                           FormatDuration(evaluation.seconds));
+}
+
+std::vector<std::pair<std::string, NetworkEvaluation>> EvaluateHeldOut(const Network& network,
+                                                                       const LocalizationMap& map,
+                                                                       double fraction,
+                                                                       uint64_t seed) {
+  const std::vector<uint32_t> held_out = HeldOutObservations(map.scene(), fraction, seed);
+  std::vector<std::pair<std::string, NetworkEvaluation>> evaluations = {
+      {"held_out", EvaluateNetwork(network, map.scene(), map.label_tree(), held_out)},
+      {"held_out_masked",
+       EvaluateNetwork(network, map.scene(), map.label_tree(), held_out, &map.visibility())}};
+  std::cout << fmt::format("held-out observations ({:.1f} %), accuracy in %:\n", 100 * fraction);
+  std::string header;
+  for (int level = 1; level <= map.label_tree().levels(); ++level) {
+    header += fmt::format(" {:>6}", fmt::format("L{}", level));
+  }
+  std::cout << fmt::format("  {:<16}{:>9}  {} | {:>6}\n", "decoding", "samples", header, "point");
+  PrintEvaluation("argmax", evaluations[0].second);
+  PrintEvaluation("visibility mask", evaluations[1].second);
+  return evaluations;
+}
+
+int RunTrain(TrainArguments& arguments) {
+  TrainerOptions& options = arguments.options;
+  options.device = ParseComputeDevice(arguments.device);
+  options.augmentation.enabled = !arguments.no_augment;
+  options.checkpoint_path = arguments.checkpoint.empty()
+                                ? std::filesystem::path(arguments.map_dir + ".checkpoint.pt")
+                                : std::filesystem::path(arguments.checkpoint);
+  Timer timer;
+  const auto map = LocalizationMap::Load(arguments.map_dir, {.load_observations = true});
+  std::cerr << fmt::format("loaded {} ({} observations of {} points) in {}\n", arguments.map_dir,
+                           map->scene().NumObservations(), map->scene().NumPoints(),
+                           FormatDuration(timer.ElapsedSeconds()));
+  SetComputeThreads(options.num_threads);
+
+  if (arguments.eval_only) {
+    const MapBundle bundle = MapBundle::Open(arguments.map_dir);
+    const Network network = Network::FromBundle(bundle, options.device);
+    const nlohmann::json training = bundle.metadata()
+                                        .value("network", nlohmann::json::object())
+                                        .value("training", nlohmann::json::object());
+    EvaluateHeldOut(network, *map, training.value("holdout_fraction", options.holdout_fraction),
+                    training.value("holdout_seed", options.holdout_seed));
+    return 0;
+  }
+
+  options.Check();
+  const TrainingResult result = TrainNetwork(map->scene(), map->label_tree(), options);
+  std::cout << fmt::format(
+      "trained {} iterations in {} on {} observations ({} held out), {} parameters\n"
+      "  final loss {:.4f}, training accuracy per level (teacher-forced):",
+      result.iterations, FormatDuration(result.seconds), result.num_training_observations,
+      result.num_held_out_observations, result.network.NumParameters(), result.final_loss);
+  for (const double accuracy : result.final_level_accuracies) {
+    std::cout << fmt::format(" {:.2f}", 100 * accuracy);
+  }
+  std::cout << " %\n";
+  std::vector<std::pair<std::string, NetworkEvaluation>> evaluations;
+  if (arguments.eval && result.num_held_out_observations > 0) {
+    evaluations =
+        EvaluateHeldOut(result.network, *map, options.holdout_fraction, options.holdout_seed);
+  }
+  WriteNetworkToBundle(arguments.map_dir, result, options, evaluations);
+  std::cout << fmt::format("network written to {} ({}, {})\n", arguments.map_dir,
+                           network_blobs::kNetwork, network_blobs::kTrainingLog);
+  return 0;
+}
+
+}  // namespace
+
+void AddTrainCommand(CLI::App& app, CommandRunner& run) {
+  auto arguments = std::make_shared<TrainArguments>();
+  TrainerOptions& options = arguments->options;
+  CLI::App* command =
+      app.add_subcommand("train", "Train the hierarchical classification network of a map");
+  command->add_option("--map", arguments->map_dir, "Map bundle (hscloc build-map)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  CLI::Option* iterations =
+      command->add_option("--iterations", options.max_iterations, "Iteration budget (0: none)")
+          ->capture_default_str();
+  command->add_option("--minutes", options.max_minutes, "Time budget in minutes (0: none)")
+      ->capture_default_str();
+  command->add_option("--device", arguments->device, "cpu or cuda")
+      ->check(CLI::IsMember({"cpu", "cuda"}))
+      ->capture_default_str();
+  command->add_flag("--resume", options.resume, "Continue from the checkpoint when it exists");
+  command->add_option("--checkpoint", arguments->checkpoint,
+                      "Checkpoint file (default: MAP.checkpoint.pt beside the bundle)");
+  command
+      ->add_option("--checkpoint-every", options.checkpoint_every_iterations,
+                   "Iterations between checkpoints")
+      ->capture_default_str();
+  command->add_option("--batch-size", options.batch_size, "Observations per batch")
+      ->capture_default_str();
+  command->add_option("--lr", options.learning_rate, "Adam learning rate (halved at 50/75/90 %)")
+      ->capture_default_str();
+  command->add_option("--channels", options.network.channels, "Width C of every level")
+      ->capture_default_str();
+  command
+      ->add_option("--embedding-dim", options.network.embedding_dim,
+                   "Width of the image and label embeddings")
+      ->capture_default_str();
+  command
+      ->add_option("--conditioned-layers", options.network.conditioned_layers,
+                   "FiLM-conditioned layers per level (1-3)")
+      ->capture_default_str();
+  command->add_flag("--no-augment", arguments->no_augment, "Train without descriptor noise");
+  command
+      ->add_option("--noise-norm", options.augmentation.noise_norm,
+                   "Norm of the Gaussian noise added to unit descriptors")
+      ->capture_default_str();
+  command
+      ->add_option("--dimension-dropout", options.augmentation.dimension_dropout,
+                   "Probability of zeroing a descriptor dimension")
+      ->capture_default_str();
+  command
+      ->add_option("--image-dropout", options.image_dropout,
+                   "Probability of training a sample without its image id")
+      ->capture_default_str();
+  command
+      ->add_option("--holdout", options.holdout_fraction,
+                   "Fraction of observations held out from training")
+      ->capture_default_str();
+  command->add_option("--seed", options.seed, "Seed of weights, data order and augmentation")
+      ->capture_default_str();
+  command->add_option("--threads", options.num_threads, "CPU threads (0: all cores)");
+  command
+      ->add_option("--log-every", options.log_every_iterations, "Iterations per training log line")
+      ->capture_default_str();
+  command->add_flag("--eval", arguments->eval,
+                    "After training, report per-level and point accuracy on the held-out "
+                    "observations (plain and visibility-masked decoding)");
+  command->add_flag("--eval-only", arguments->eval_only,
+                    "Only evaluate the map's trained network on its held-out observations");
+  command->callback([&run, arguments, iterations] {
+    // A time budget alone replaces the default iteration budget instead of racing it.
+    if (arguments->options.max_minutes > 0 && iterations->count() == 0) {
+      arguments->options.max_iterations = 0;
+    }
+    run = [arguments] { return RunTrain(*arguments); };
+  });
+}
+
+}  // namespace hscloc
