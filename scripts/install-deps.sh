@@ -9,7 +9,7 @@ packages=(
   libzmq3-dev cppzmq-dev libprotobuf-dev protobuf-compiler
   libhdf5-dev libsqlite3-dev sqlite3 libssl-dev libcli11-dev libspdlog-dev libfmt-dev nlohmann-json3-dev
   libopenblas0-pthread
-  libgtest-dev libgmock-dev libbenchmark-dev
+  libgtest-dev libgmock-dev libbenchmark-dev python3 python3-yaml
   colmap
 )
 

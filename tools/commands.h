@@ -16,5 +16,6 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run);
 void AddEvalCommand(CLI::App& app, CommandRunner& run);
 void AddServeCommand(CLI::App& app, CommandRunner& run);
 void AddKeygenCommand(CLI::App& app, CommandRunner& run);
+void AddDemoCommand(CLI::App& app, CommandRunner& run);
 
 }  // namespace hscloc

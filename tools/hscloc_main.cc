@@ -12,21 +12,6 @@
 #include "tools/commands.h"
 #include "util/logging.h"
 
-namespace {
-
-struct PlannedCommand {
-  const char* name;
-  const char* description;
-};
-
-// Subcommands that DESIGN.md plans but whose implementation has not landed yet: they are listed in
-// --help so the shape of the tool is visible, and say so when run.
-constexpr PlannedCommand kPlannedCommands[] = {
-    {"demo", "Run the whole pipeline on an embedded demo map"},
-};
-
-}  // namespace
-
 int main(int argc, char** argv) {
   CLI::App app{
       "hscloc: city-scale visual localization (hierarchical scene coordinate classification)"};
@@ -45,17 +30,7 @@ int main(int argc, char** argv) {
   hscloc::AddEvalCommand(app, run);
   hscloc::AddServeCommand(app, run);
   hscloc::AddKeygenCommand(app, run);
-  for (const PlannedCommand& planned : kPlannedCommands) {
-    CLI::App* command = app.add_subcommand(planned.name, planned.description);
-    command->allow_extras();
-    command->callback([&run, name = std::string(planned.name)] {
-      run = [name] {
-        std::fprintf(stderr, "hscloc %s: not built yet\n", name.c_str());
-        return 3;
-      };
-    });
-  }
-
+  hscloc::AddDemoCommand(app, run);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& error) {
