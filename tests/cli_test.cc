@@ -3,9 +3,15 @@
 #include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
+#include <chrono>
 #include <fstream>
+#include <map>
 #include <sstream>
+#include <thread>
 
 #include "model/query_io.h"
 #include "util/testing.h"
@@ -112,6 +118,57 @@ TEST_F(CliTest, LocalizeResumeAndEvaluate) {
     EXPECT_GE(fine, 90.0) << line;
   }
   EXPECT_TRUE(found_day);
+}
+
+// The server path (hscloc serve + hscloc-client batch, float32 descriptors) writes the same
+// submission as the offline batch.
+TEST_F(CliTest, ClientBatchThroughTheServerEqualsOfflineLocalize) {
+  const std::string offline = Temp("offline.txt");
+  ASSERT_EQ(Hscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
+                               NightList(), Features(), offline),
+                   temp_ / "offline.log"),
+            0);
+  const fs::path server_log = temp_ / "serve.log";
+  const pid_t server = fork();
+  if (server == 0) {
+    const std::string log = server_log.string();
+    freopen(log.c_str(), "w", stdout);
+    freopen(log.c_str(), "a", stderr);
+    const std::string map = Map();
+    execl(HSCLOC_BINARY, HSCLOC_BINARY, "serve", "--map", map.c_str(), "--bind",
+          "tcp://127.0.0.1:0", "--workers", "2", static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  std::string endpoint;
+  for (int wait = 0; wait < 600 && endpoint.empty(); ++wait) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    const std::string log = ReadText(server_log);
+    const size_t at = log.find("listening on ");
+    if (at != std::string::npos && log.find('\n', at) != std::string::npos) {
+      endpoint = log.substr(at + 13, log.find('\n', at) - at - 13);
+    }
+  }
+  ASSERT_FALSE(endpoint.empty()) << ReadText(server_log);
+  const std::string served = Temp("served.txt");
+  const int status = testing::RunCommand(
+      fmt::format("{} --server {} --float32 batch --queries {} --features {} --out {} --inflight 4",
+                  HSCLOC_CLIENT_BINARY, endpoint, NightList(), Features(), served),
+      Temp("client.log"));
+  kill(server, SIGTERM);
+  int server_status = 0;
+  waitpid(server, &server_status, 0);
+  ASSERT_EQ(status, 0) << ReadText(temp_ / "client.log");
+  EXPECT_TRUE(WIFEXITED(server_status) && WEXITSTATUS(server_status) == 0) << ReadText(server_log);
+  // Same lines; the client writes them in completion order.
+  std::map<std::string, std::string> expected;
+  for (const NamedPose& pose : ReadPoses(offline)) {
+    expected[pose.name] = FormatPoseLine(pose.name, pose.cam_from_world);
+  }
+  const std::vector<NamedPose> actual = ReadPoses(served);
+  ASSERT_EQ(actual.size(), expected.size());
+  for (const NamedPose& pose : actual) {
+    EXPECT_EQ(FormatPoseLine(pose.name, pose.cam_from_world), expected[pose.name]);
+  }
 }
 
 TEST_F(CliTest, BadInputsFailWithAClearMessage) {

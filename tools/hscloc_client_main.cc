@@ -156,6 +156,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--curve-server-key", common.curve_server_key_file,
                  "File with the server's CURVE public key (encrypted connection)");
+  bool float32 = false;
+  app.add_flag("--float32", float32,
+               "Send descriptors as float32 (default float16: half the bytes, results may differ "
+               "in the last bits)");
+  app.parse_complete_callback([&] { common.float16 = !float32; });
   std::function<int()> run;
 
   CLI::App* query = app.add_subcommand("query", "Localize one photo or one image's features");
