@@ -23,6 +23,7 @@
 #include "server/map_builder.h"
 #include "tools/commands.h"
 #include "util/check.h"
+#include "util/logging.h"
 #include "util/timer.h"
 
 namespace hscloc {
@@ -208,6 +209,8 @@ int RunDemo(const DemoArguments& arguments) {
   }
 
   Section("server on loopback, queries through hscloc-client batch", total);
+  // The server's per-request log lines would bury the demo's output.
+  SetupLogging("warn");
   ServiceOptions service_options;
   service_options.bind = "tcp://127.0.0.1:0";
   SetComputeThreads(1);
@@ -223,6 +226,7 @@ int RunDemo(const DemoArguments& arguments) {
   std::cout << command << '\n' << std::flush;
   if (std::system(command.c_str()) != 0) ThrowInvalidArgument("hscloc-client batch failed");
   service.Stop();
+  SetupLogging("info");
 
   Section("accuracy", total);
   const std::vector<QueryPoseError> errors =
