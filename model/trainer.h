@@ -50,8 +50,10 @@ struct TrainerOptions {
   std::vector<double> halving_fractions = {0.5, 0.75, 0.9};
   DescriptorAugmentationOptions augmentation;
   // Probability of replacing a sample's image by the "no image" index, so that the network also
-  // learns to classify without an image (the id-free ablation).
-  double image_dropout = 0;
+  // learns to classify without an image (the id-free ablation). It also regularizes: on maps with
+  // few views per point the network leans less on memorized (image, descriptor) pairs
+  // (docs/decisions.md).
+  double image_dropout = 0.1;
   // Fraction of observations held out from training (deterministic in holdout_seed), for
   // EvaluateNetwork on data the network never saw.
   double holdout_fraction = 0.05;

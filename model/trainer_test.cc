@@ -57,6 +57,7 @@ TrainerOptions QuickOptions(int64_t iterations) {
   options.network.embedding_dim = 64;
   options.max_iterations = iterations;
   options.batch_size = 256;
+  options.image_dropout = 0;
   options.show_progress = false;
   options.log_every_iterations = 10;
   return options;

@@ -341,16 +341,18 @@ TEST(RealDataLocalizerTest, FountainQueriesWithinQuarterMetreAndTwoDegrees) {
 }
 
 // Lund's map has 3.2 observations per point, and its SfM pseudo ground truth is folded between
-// 15.jpg and 16.jpg (see the set's README): the network, trained on so few views of each point,
-// localizes 3 of the 5 queries within (0.25 m, 2 deg), nearest-neighbour matching 4 (25.jpg,
-// where COLMAP itself is 0.19 m off, lands at 0.32 m).
+// 15.jpg and 16.jpg (see the set's README). The network localizes all 5 queries within
+// (0.25 m, 2 deg) here, 25.jpg at 0.24 m, where COLMAP's own registration is 0.19 m and nearest
+// neighbour 0.32 m from the pseudo ground truth; the check leaves that one query its slack.
 TEST(RealDataLocalizerTest, LundQueriesAgainstColmap) {
   HSCLOC_REQUIRE_REAL_DATA(data, "lund");
-  std::map<Matcher, int> within = LocalizeRealSet(
-      data, 400,
-      {{"05.jpg", 0.0408}, {"10.jpg", 0.0162}, {"15.jpg", 0.0137}, {"20.jpg", 0.0532},
-       {"25.jpg", 0.1947}});
-  EXPECT_GE(within[Matcher::kNetwork], 3);
+  std::map<Matcher, int> within = LocalizeRealSet(data, 400,
+                                                  {{"05.jpg", 0.0408},
+                                                   {"10.jpg", 0.0162},
+                                                   {"15.jpg", 0.0137},
+                                                   {"20.jpg", 0.0532},
+                                                   {"25.jpg", 0.1947}});
+  EXPECT_GE(within[Matcher::kNetwork], 4);
   EXPECT_GE(within[Matcher::kNearestNeighbor], 4);
 }
 

@@ -9,6 +9,4 @@ rm -rf "$out"
 mkdir -p "$out"
 "$hscloc" synth --preset "$preset" --out "$out/city" --overwrite
 "$hscloc" build-map --model "$out/city/map" --features "$out/city/features.h5" --out "$out/map"
-# Image dropout teaches the "no image" embedding, so that the id-free ablation is meaningful.
-"$hscloc" train --map "$out/map" --iterations "$iterations" --image-dropout 0.1 --eval \
-  --log-every 100
+"$hscloc" train --map "$out/map" --iterations "$iterations" --eval --log-every 100

@@ -4,6 +4,7 @@
 // the accuracy, the ablations and the latency per stage are printed and written, with the error
 // plot and pictures of inlier matches, into an HTML report.
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 #include <unistd.h>
 
 #include <fstream>
@@ -23,7 +24,6 @@
 #include "server/map_builder.h"
 #include "tools/commands.h"
 #include "util/check.h"
-#include "util/logging.h"
 #include "util/timer.h"
 
 namespace hscloc {
@@ -167,7 +167,7 @@ int RunDemo(const DemoArguments& arguments) {
     queries.features = data / "database.db";
     queries.ground_truth = data / "queries_gt.txt";
     images_dir = data / "images";
-    promised_fine_fraction = 0.6;
+    promised_fine_fraction = 0.8;
   } else {
     Section("synthetic city 'small'", total);
     SyntheticCityWriteOptions write_options;
@@ -200,7 +200,6 @@ int RunDemo(const DemoArguments& arguments) {
     TrainerOptions train_options;
     train_options.max_iterations = arguments.iterations;
     train_options.max_minutes = arguments.minutes;
-    train_options.image_dropout = 0.1;
     train_options.holdout_fraction = arguments.real ? 0 : 0.05;
     const TrainingResult result = TrainNetwork(map->scene(), map->label_tree(), train_options);
     std::cout << fmt::format("{} iterations in {}, final loss {:.3f}\n", result.iterations,
@@ -210,7 +209,7 @@ int RunDemo(const DemoArguments& arguments) {
 
   Section("server on loopback, queries through hscloc-client batch", total);
   // The server's per-request log lines would bury the demo's output.
-  SetupLogging("warn");
+  spdlog::set_level(spdlog::level::warn);
   ServiceOptions service_options;
   service_options.bind = "tcp://127.0.0.1:0";
   SetComputeThreads(1);
@@ -226,7 +225,7 @@ int RunDemo(const DemoArguments& arguments) {
   std::cout << command << '\n' << std::flush;
   if (std::system(command.c_str()) != 0) ThrowInvalidArgument("hscloc-client batch failed");
   service.Stop();
-  SetupLogging("info");
+  spdlog::set_level(spdlog::level::info);
 
   Section("accuracy", total);
   const std::vector<QueryPoseError> errors =
