@@ -335,6 +335,24 @@ void LocalizationService::FrontLoop() {
         reply(job->envelope, ErrorResponse(wire::INVALID_REQUEST, "the request has no kind"));
     }
   }
+  // Requests that reached the socket after the stop are still answered (UNAVAILABLE), until it
+  // has been quiet for a moment.
+  while (true) {
+    zmq::pollitem_t item = {zmq_->router.handle(), 0, ZMQ_POLLIN, 0};
+    zmq::poll(&item, 1, std::chrono::milliseconds(100));
+    if (!(item.revents & ZMQ_POLLIN)) break;
+    std::vector<zmq::message_t> frames;
+    if (!zmq::recv_multipart(zmq_->router, std::back_inserter(frames)) || frames.size() < 2) {
+      continue;
+    }
+    wire::Request request;
+    request.ParseFromArray(frames.back().data(), static_cast<int>(frames.back().size()));
+    frames.pop_back();
+    reply(frames,
+          request.has_localize()
+              ? LocalizeErrorResponse(request, wire::UNAVAILABLE, "the server is shutting down")
+              : ErrorResponse(wire::UNAVAILABLE, "the server is shutting down"));
+  }
   // The last workers' replies may still be in flight on the inproc channel.
   while (true) {
     zmq::pollitem_t item = {zmq_->replies.handle(), 0, ZMQ_POLLIN, 0};

@@ -282,35 +282,48 @@ TEST_F(LocalizationServiceTest, FullQueueAnswersOverloaded) {
   EXPECT_GE(statuses[wire::OK], 1);
 }
 
-TEST_F(LocalizationServiceTest, StopDrainsAcceptedRequests) {
+TEST_F(LocalizationServiceTest, StopDrainsAcceptedRequestsAndRefusesLaterOnes) {
   auto service = std::make_unique<LocalizationService>(MapDir(), LoopbackOptions());
   const std::string endpoint = service->Start();
   zmq::context_t context(1);
   zmq::socket_t dealer(context, zmq::socket_type::dealer);
   dealer.set(zmq::sockopt::rcvtimeo, 60000);
   dealer.connect(endpoint);
-  wire::Request request;
-  request.set_protocol_version(kProtocolVersion);
-  *request.mutable_localize() = RequestOf(Queries()[1], true);
-  for (int i = 0; i < 4; ++i) {
-    dealer.send(zmq::buffer(std::to_string(i)), zmq::send_flags::sndmore);
+  const auto send = [&](const std::string& id, const wire::Request& request) {
+    dealer.send(zmq::buffer(id), zmq::send_flags::sndmore);
     dealer.send(zmq::buffer(request.SerializeAsString()), zmq::send_flags::none);
-  }
-  // Stop once the four are in (answered or queued): none may be lost.
-  LocalizationClient client(ClientFor(endpoint));
-  client.Health();
-  std::thread stopper([&] { service->Stop(); });
-  int answered = 0;
-  for (int i = 0; i < 4; ++i) {
+  };
+  wire::Request localize;
+  localize.set_protocol_version(kProtocolVersion);
+  *localize.mutable_localize() = RequestOf(Queries()[1], true);
+  wire::Request health;
+  health.set_protocol_version(kProtocolVersion);
+  health.mutable_health();
+  for (int i = 0; i < 4; ++i) send(std::to_string(i), localize);
+  // One connection's messages are read in order: once the health reply is back, the server has
+  // accepted the four requests before it.
+  send("health", health);
+  std::map<std::string, wire::Status> statuses;
+  const auto receive = [&] {
     std::vector<zmq::message_t> frames;
-    if (!zmq::recv_multipart(dealer, std::back_inserter(frames))) break;
+    if (!zmq::recv_multipart(dealer, std::back_inserter(frames))) return false;
     wire::Response response;
-    ASSERT_TRUE(response.ParseFromArray(frames[1].data(), frames[1].size()));
-    EXPECT_EQ(response.localize().status(), wire::OK);
-    ++answered;
+    EXPECT_TRUE(response.ParseFromArray(frames[1].data(), frames[1].size()));
+    statuses[frames[0].to_string()] =
+        response.has_localize() ? response.localize().status() : response.status();
+    return true;
+  };
+  while (!statuses.count("health")) ASSERT_TRUE(receive());
+  std::thread stopper([&] { service->Stop(); });
+  // A request that arrives while the server drains is refused, not dropped.
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  send("late", localize);
+  while (statuses.size() < 6 && receive()) {
   }
   stopper.join();
-  EXPECT_EQ(answered, 4);
+  for (int i = 0; i < 4; ++i) EXPECT_EQ(statuses[std::to_string(i)], wire::OK) << i;
+  ASSERT_TRUE(statuses.count("late"));
+  EXPECT_NE(statuses["late"], wire::INVALID_REQUEST);  // UNAVAILABLE, or OK if it beat the stop
 }
 
 // Copies the bundle (its files are small enough) so that it can be damaged.
