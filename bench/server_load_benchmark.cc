@@ -15,6 +15,7 @@
 #include "model/feature_io.h"
 #include "model/query_io.h"
 #include "server/localization_service.h"
+#include "server/wire.h"
 #include "util/logging.h"
 #include "util/parallel.h"
 #include "util/timer.h"
@@ -34,18 +35,10 @@ int Run(const std::filesystem::path& dir, int requests_per_client) {
   const auto features = OpenH5Features(dir / "city" / "features.h5");
   for (const QueryWithIntrinsics& query :
        ReadQueryList(dir / "city" / "queries" / "day_time_queries_with_intrinsics.txt")) {
-    const ImageFeatures image = features->Read(query.name);
-    wire::Camera camera;
-    camera.set_model(CameraModelName(query.camera.model_id));
-    camera.set_width(static_cast<uint32_t>(query.camera.width));
-    camera.set_height(static_cast<uint32_t>(query.camera.height));
-    for (const double param : query.camera.params) camera.add_params(param);
-    requests.push_back(MakeLocalizeRequest(
-        query.name, camera,
-        std::vector<float>(image.keypoints.data(), image.keypoints.data() + image.keypoints.size()),
-        std::vector<float>(image.descriptors.data(),
-                           image.descriptors.data() + image.descriptors.size()),
-        static_cast<uint32_t>(image.Dimension()), true));
+    ImageFeatures image = features->Read(query.name);
+    requests.push_back(QueryToWire({query.name, query.camera, std::move(image.keypoints),
+                                    std::move(image.descriptors), std::nullopt},
+                                   true));
   }
   ServiceOptions options;
   options.bind = "tcp://127.0.0.1:0";
@@ -58,9 +51,9 @@ int Run(const std::filesystem::path& dir, int requests_per_client) {
   client_options.timeout_ms = 600000;
 
   std::cout << fmt::format(
-      "{} workers on {} cores; {} requests per client, {} distinct day queries (mean {} keypoints)\n",
-      options.workers, ResolveNumThreads(0), requests_per_client, requests.size(),
-      [&] {
+      "{} workers on {} cores; {} requests per client, {} distinct day queries (mean {} "
+      "keypoints)\n",
+      options.workers, ResolveNumThreads(0), requests_per_client, requests.size(), [&] {
         size_t total = 0;
         for (const auto& request : requests) total += request.num_keypoints();
         return total / std::max<size_t>(1, requests.size());

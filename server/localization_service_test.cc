@@ -29,26 +29,13 @@ struct Query {
   ImageFeatures features;
 };
 
-wire::Camera ToWire(const Camera& camera) {
-  wire::Camera wire_camera;
-  wire_camera.set_model(CameraModelName(camera.model_id));
-  wire_camera.set_width(static_cast<uint32_t>(camera.width));
-  wire_camera.set_height(static_cast<uint32_t>(camera.height));
-  for (const double param : camera.params) wire_camera.add_params(param);
-  return wire_camera;
-}
-
 wire::LocalizeRequest RequestOf(const Query& query, bool float16 = false,
                                 int64_t max_keypoints = -1) {
   const int64_t n = max_keypoints < 0 ? query.features.NumKeypoints()
                                       : std::min(max_keypoints, query.features.NumKeypoints());
-  const int64_t d = query.features.Dimension();
-  return MakeLocalizeRequest(
-      query.name, ToWire(query.camera),
-      std::vector<float>(query.features.keypoints.data(), query.features.keypoints.data() + 2 * n),
-      std::vector<float>(query.features.descriptors.data(),
-                         query.features.descriptors.data() + n * d),
-      static_cast<uint32_t>(d), float16);
+  return QueryToWire({query.name, query.camera, query.features.keypoints.topRows(n),
+                      query.features.descriptors.topRows(n), std::nullopt},
+                     float16);
 }
 
 class LocalizationServiceTest : public ::testing::Test {

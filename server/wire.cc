@@ -89,6 +89,39 @@ LocalizationQuery QueryFromWire(const wire::LocalizeRequest& request, const Wire
   return query;
 }
 
+wire::LocalizeRequest QueryToWire(const LocalizationQuery& query, bool float16) {
+  THROW_CHECK_EQ(query.keypoints.rows(), query.descriptors.rows());
+  wire::LocalizeRequest request;
+  request.set_request_id(query.name);
+  request.set_query_name(query.name);
+  wire::Camera* camera = request.mutable_camera();
+  camera->set_model(CameraModelName(query.camera.model_id));
+  camera->set_width(static_cast<uint32_t>(query.camera.width));
+  camera->set_height(static_cast<uint32_t>(query.camera.height));
+  for (const double param : query.camera.params) camera->add_params(param);
+  const int64_t n = query.keypoints.rows();
+  const int64_t d = query.descriptors.cols();
+  request.set_num_keypoints(static_cast<uint32_t>(n));
+  request.set_keypoints(query.keypoints.data(), n * 2 * sizeof(float));
+  request.set_descriptor_dim(static_cast<uint32_t>(d));
+  if (float16) {
+    std::string packed(n * d * 2, '\0');
+    for (int64_t i = 0; i < n * d; ++i) {
+      const uint16_t bits = FloatToHalfBits(query.descriptors.data()[i]);
+      std::memcpy(packed.data() + 2 * i, &bits, 2);
+    }
+    request.set_descriptor_type(wire::DESCRIPTOR_FLOAT16);
+    request.set_descriptors(std::move(packed));
+  } else {
+    request.set_descriptor_type(wire::DESCRIPTOR_FLOAT32);
+    request.set_descriptors(query.descriptors.data(), n * d * sizeof(float));
+  }
+  if (query.global_descriptor.has_value()) {
+    for (const float value : *query.global_descriptor) request.add_global_descriptor(value);
+  }
+  return request;
+}
+
 LocalizerOptions OptionsFromWire(const wire::LocalizeOptions& overrides, LocalizerOptions options,
                                  const WireLimits& limits) {
   if (overrides.has_top_k()) {

@@ -28,6 +28,11 @@ struct WireLimits {
 // then checks values (finite, inside the image, D equal to the map's).
 LocalizationQuery QueryFromWire(const wire::LocalizeRequest& request, const WireLimits& limits);
 
+// The inverse of QueryFromWire, for in-process callers that speak the protocol (tests,
+// benchmarks): camera, keypoints and descriptors (float16 when `float16`) and the global
+// descriptor when the query has one. The request id is the query's name.
+wire::LocalizeRequest QueryToWire(const LocalizationQuery& query, bool float16);
+
 // The server's options with the request's overrides applied (top_k within limits).
 LocalizerOptions OptionsFromWire(const wire::LocalizeOptions& overrides, LocalizerOptions options,
                                  const WireLimits& limits);

@@ -56,6 +56,34 @@ TEST(WireTest, QueryRoundTripsFromTheClientsPacking) {
   }
 }
 
+TEST(WireTest, QueryToWireInvertsQueryFromWire) {
+  Random random(6);
+  LocalizationQuery query;
+  query.name = "night/q.jpg";
+  query.camera =
+      Camera::FromModelName(0, "OPENCV", 640, 480, {500, 501, 320, 240, 0.01, -0.02, 1e-4, 2e-4});
+  query.keypoints.resize(25, 2);
+  query.descriptors.resize(25, 16);
+  for (int64_t i = 0; i < query.keypoints.size(); ++i) {
+    query.keypoints.data()[i] = static_cast<float>(random.Uniform(1, 470));
+  }
+  for (int64_t i = 0; i < query.descriptors.size(); ++i) {
+    query.descriptors.data()[i] = static_cast<float>(random.Normal());
+  }
+  query.global_descriptor = Eigen::VectorXf::Constant(7, 0.25f);
+  const LocalizationQuery back = QueryFromWire(QueryToWire(query, false), WireLimits());
+  EXPECT_EQ(back.name, query.name);
+  EXPECT_EQ(back.camera.params, query.camera.params);
+  EXPECT_EQ(back.camera.model_id, query.camera.model_id);
+  EXPECT_EQ(back.keypoints, query.keypoints);
+  EXPECT_EQ(back.descriptors, query.descriptors);
+  ASSERT_TRUE(back.global_descriptor.has_value());
+  EXPECT_EQ(*back.global_descriptor, *query.global_descriptor);
+  const LocalizationQuery half = QueryFromWire(QueryToWire(query, true), WireLimits());
+  EXPECT_TRUE(half.descriptors.isApprox(query.descriptors, 1e-3f));
+  EXPECT_NE(half.descriptors, query.descriptors);
+}
+
 TEST(WireTest, EveryInconsistentFieldIsNamed) {
   Random random(4);
   const wire::LocalizeRequest good = SmallRequest(false, random);

@@ -13,6 +13,7 @@
 #include "model/feature_io.h"
 #include "model/query_io.h"
 #include "server/broker.h"
+#include "server/wire.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -70,18 +71,10 @@ TEST(ScaleOutTest, AKilledWorkerLosesNoRequest) {
   const auto features = OpenH5Features(dir / "city" / "features.h5");
   for (const QueryWithIntrinsics& query :
        ReadQueryList(dir / "city" / "queries" / "day_time_queries_with_intrinsics.txt")) {
-    const ImageFeatures image = features->Read(query.name);
-    wire::Camera camera;
-    camera.set_model(CameraModelName(query.camera.model_id));
-    camera.set_width(static_cast<uint32_t>(query.camera.width));
-    camera.set_height(static_cast<uint32_t>(query.camera.height));
-    for (const double param : query.camera.params) camera.add_params(param);
-    requests.push_back(MakeLocalizeRequest(
-        query.name, camera,
-        std::vector<float>(image.keypoints.data(), image.keypoints.data() + image.keypoints.size()),
-        std::vector<float>(image.descriptors.data(),
-                           image.descriptors.data() + image.descriptors.size()),
-        static_cast<uint32_t>(image.Dimension()), true));
+    ImageFeatures image = features->Read(query.name);
+    requests.push_back(QueryToWire({query.name, query.camera, std::move(image.keypoints),
+                                    std::move(image.descriptors), std::nullopt},
+                                   true));
     requests.back().mutable_options()->set_top_k(3);
     if (requests.size() == 30) break;
   }
