@@ -72,6 +72,9 @@ std::shared_ptr<const LocalizationMap> LocalizationMap::Load(
   map->global_descriptors_ = ReadBlob(bundle, map_blobs::kGlobalDescriptors, ReadGlobalDescriptors);
   map->global_index_ = ReadBlob(bundle, map_blobs::kGlobalIndex, GlobalIndex::Read);
   map->descriptor_dim_ = map->metadata_.value("descriptor_dim", 0);
+  if (options.load_network && bundle.HasBlob(network_blobs::kNetwork)) {
+    map->network_ = std::make_shared<const Network>(Network::FromBundle(bundle, options.device));
+  }
 
   // The parts were written together; a mismatch means a bundle assembled from different maps.
   const auto fail = [&](const std::string& what) {

@@ -13,6 +13,7 @@
 #include <string>
 
 #include "model/label_tree.h"
+#include "model/network.h"
 #include "model/scene.h"
 #include "model/visibility.h"
 #include "retrieval/global_index.h"
@@ -37,6 +38,10 @@ struct LocalizationMapLoadOptions {
   // Observations (descriptors of every database observation) are needed for training and the
   // explicit-matching baseline, not for classification-based localization.
   bool load_observations = false;
+  // The trained network, when the bundle has one, read from the same verified opening of the
+  // bundle as the other parts (so map and network always come from one version of it).
+  bool load_network = true;
+  ComputeDevice device = ComputeDevice::kCpu;
 };
 
 class LocalizationMap {
@@ -57,6 +62,8 @@ class LocalizationMap {
   const GlobalIndex& global_index() const { return global_index_; }
   const GlobalDescriptorMatrix& global_descriptors() const { return global_descriptors_; }
   int descriptor_dim() const { return descriptor_dim_; }
+  // Null when the bundle has no trained network or it was not asked for.
+  const std::shared_ptr<const Network>& network() const { return network_; }
 
  private:
   std::filesystem::path dir_;
@@ -68,6 +75,7 @@ class LocalizationMap {
   GlobalIndex global_index_;
   GlobalDescriptorMatrix global_descriptors_;
   int descriptor_dim_ = 0;
+  std::shared_ptr<const Network> network_;
 };
 
 void WriteGlobalDescriptors(std::ostream& stream, const GlobalDescriptorMatrix& descriptors);

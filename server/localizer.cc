@@ -130,12 +130,10 @@ Localizer::Localizer(std::shared_ptr<const LocalizationMap> map,
 Localizer Localizer::FromBundle(const std::filesystem::path& bundle_dir,
                                 const LocalizerOptions& options, ComputeDevice device) {
   auto map = LocalizationMap::Load(
-      bundle_dir, {.load_observations = options.matcher == Matcher::kNearestNeighbor});
-  std::shared_ptr<const Network> network;
-  if (options.matcher == Matcher::kNetwork) {
-    network =
-        std::make_shared<const Network>(Network::FromBundle(MapBundle::Open(bundle_dir), device));
-  }
+      bundle_dir, {.load_observations = options.matcher == Matcher::kNearestNeighbor,
+                   .load_network = options.matcher == Matcher::kNetwork,
+                   .device = device});
+  std::shared_ptr<const Network> network = map->network();
   return Localizer(std::move(map), std::move(network), options);
 }
 

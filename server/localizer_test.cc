@@ -87,9 +87,7 @@ class SmallCityLocalizerTest : public ::testing::Test {
     const auto dir = testing::TrainedSmallCityDir();
     if (!dir) return;
     auto map = LocalizationMap::Load(*dir / "map", {.load_observations = true});
-    auto network =
-        std::make_shared<const Network>(Network::FromBundle(MapBundle::Open(*dir / "map")));
-    localizer_ = new Localizer(std::move(map), std::move(network));
+    localizer_ = new Localizer(map, map->network());
     const auto features = OpenH5Features(*dir / "city" / "features.h5");
     for (const char* condition : {"day", "night"}) {
       sets_[condition] = ReadQuerySet(
@@ -274,6 +272,22 @@ TEST_F(SmallCityLocalizerTest, MalformedQueriesAreRejectedWithTheirReason) {
   const PoseResult result = localizer().Localize(empty);
   EXPECT_FALSE(result.success);
   EXPECT_THAT(result.failure_reason, HasSubstr("0 keypoints"));
+}
+
+TEST(LocalizationMapTest, LoadsTheNetworkWithTheMapFromOneOpening) {
+  HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
+  const auto map = LocalizationMap::Load(dir / "map");
+  ASSERT_NE(map->network(), nullptr);
+  EXPECT_TRUE(map->network()->HasSameWeights(Network::FromBundle(MapBundle::Open(dir / "map"))));
+  EXPECT_EQ(map->network()->shape().num_images, static_cast<int>(map->scene().NumImages()));
+  EXPECT_EQ(LocalizationMap::Load(dir / "map", {.load_network = false})->network(), nullptr);
+  // The nearest-neighbour baseline needs no network and loads none.
+  const Localizer baseline = Localizer::FromBundle(dir / "map", [] {
+    LocalizerOptions options;
+    options.matcher = Matcher::kNearestNeighbor;
+    return options;
+  }());
+  EXPECT_EQ(baseline.network(), nullptr);
 }
 
 TEST(LocalizerTest, MatcherNamesRoundTrip) {

@@ -72,6 +72,7 @@ TEST_F(MapBuilderTest, BuildsALoadableConsistentMap) {
   EXPECT_EQ(map->descriptor_dim(), 64);
   EXPECT_EQ(map->metadata()["label_tree"]["levels"], 4);
   ASSERT_TRUE(map->vlad().has_value());
+  EXPECT_EQ(map->network(), nullptr);  // not trained yet
 
   // Every point decodes from its label path; every observation is in the visibility lists.
   const LabelTree& tree = map->label_tree();

@@ -134,7 +134,8 @@ QueryScores ScoreQueries(const fs::path& city_dir, const SyntheticCity& city,
 TEST(NetworkAccuracyTest, ImageConditioningResolvesRepeatedStructure) {
   HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
   const auto map = LocalizationMap::Load(dir / "map", {.load_observations = true});
-  const Network network = Network::FromBundle(MapBundle::Open(dir / "map"));
+  ASSERT_NE(map->network(), nullptr);
+  const Network& network = *map->network();
   const SyntheticCity city(SyntheticCityOptions::Preset("small"));
   ASSERT_EQ(city.points().size() >= map->scene().NumPoints(), true);
   for (const QueryCondition condition : {QueryCondition::kDay, QueryCondition::kNight}) {

@@ -6,11 +6,11 @@
 #include <utility>
 #include <vector>
 
-#include "model/map_bundle.h"
 #include "model/network.h"
 #include "model/trainer.h"
 #include "server/localization_map.h"
 #include "tools/commands.h"
+#include "util/check.h"
 #include "util/timer.h"
 
 namespace hscloc {
@@ -64,19 +64,24 @@ int RunTrain(TrainArguments& arguments) {
                                 ? std::filesystem::path(arguments.map_dir + ".checkpoint.pt")
                                 : std::filesystem::path(arguments.checkpoint);
   Timer timer;
-  const auto map = LocalizationMap::Load(arguments.map_dir, {.load_observations = true});
+  const auto map = LocalizationMap::Load(
+      arguments.map_dir,
+      {.load_observations = true, .load_network = arguments.eval_only, .device = options.device});
   std::cerr << fmt::format("loaded {} ({} observations of {} points) in {}\n", arguments.map_dir,
                            map->scene().NumObservations(), map->scene().NumPoints(),
                            FormatDuration(timer.ElapsedSeconds()));
   SetComputeThreads(options.num_threads);
 
   if (arguments.eval_only) {
-    const MapBundle bundle = MapBundle::Open(arguments.map_dir);
-    const Network network = Network::FromBundle(bundle, options.device);
-    const nlohmann::json training = bundle.metadata()
+    if (map->network() == nullptr) {
+      ThrowInvalidArgument("map bundle {} holds no trained network (run `hscloc train`)",
+                           arguments.map_dir);
+    }
+    const nlohmann::json training = map->metadata()
                                         .value("network", nlohmann::json::object())
                                         .value("training", nlohmann::json::object());
-    EvaluateHeldOut(network, *map, training.value("holdout_fraction", options.holdout_fraction),
+    EvaluateHeldOut(*map->network(), *map,
+                    training.value("holdout_fraction", options.holdout_fraction),
                     training.value("holdout_seed", options.holdout_seed));
     return 0;
   }
