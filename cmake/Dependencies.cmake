@@ -4,7 +4,16 @@
 find_package(Threads REQUIRED)
 find_package(Eigen3 3.3 REQUIRED NO_MODULE)
 find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc calib3d features2d imgcodecs dnn)
+# Debian's Ceres links ATLAS's libf77blas and libatlas by name, in its own target and through the
+# BLAS that its SuiteSparse search finds. As direct dependencies of every executable they come
+# first in the symbol lookup and serve each sgemm_ of the process, libtorch's too: a 2048^3
+# product ran at 34 GFLOPS instead of OpenBLAS's 147 on 2 cores. The generic libblas.so.3, which
+# Debian's alternatives point at OpenBLAS, provides the same symbols.
+set(BLA_VENDOR Generic)
 find_package(Ceres REQUIRED)
+get_target_property(_ceres_link_libraries Ceres::ceres INTERFACE_LINK_LIBRARIES)
+list(FILTER _ceres_link_libraries EXCLUDE REGEX "libf77blas|libatlas")
+set_target_properties(Ceres::ceres PROPERTIES INTERFACE_LINK_LIBRARIES "${_ceres_link_libraries}")
 # FAISS's config expects OpenMP to be found first.
 find_package(OpenMP REQUIRED)
 find_package(faiss REQUIRED)

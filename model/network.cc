@@ -4,13 +4,16 @@
 #include <dlfcn.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <functional>
 #include <istream>
 #include <ostream>
 #include <sstream>
 #include <string>
 #include <utility>
 
+#include "model/dense_kernels.h"
 #include "model/network_module.h"
 #include "util/check.h"
 #include "util/parallel.h"
@@ -21,6 +24,9 @@ namespace {
 constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
 constexpr int64_t kFormatVersion = 1;
 constexpr int kMaxConditionedLayers = 3;
+
+// Threads of the CPU inference kernels (SetComputeThreads; 0: all cores).
+std::atomic<int> compute_threads{0};
 
 torch::Tensor Elu(const torch::Tensor& x) { return torch::elu(x); }
 
@@ -68,6 +74,33 @@ class NodeVisibilityMasks {
   std::vector<int> slot_of_k_;
   std::vector<uint64_t> bits_;
 };
+
+// The label a row takes at one level: the most probable child, or with a mask slot (>= 0) and a
+// known parent node, the most probable among the children the mask keeps (the plain argmax when it
+// keeps none).
+int64_t ChooseLabel(const float* probabilities, int64_t branching, const NodeVisibilityMasks* masks,
+                    int slot, int64_t parent, const LabelTree& tree) {
+  int64_t best = -1;
+  if (masks != nullptr && slot >= 0 && parent >= 0) {
+    const uint32_t first = tree.FirstChild(static_cast<uint32_t>(parent));
+    const int64_t children = tree.NumChildren(static_cast<uint32_t>(parent));
+    for (int64_t c = 0; c < children; ++c) {
+      if (masks->Contains(slot, first + static_cast<uint32_t>(c)) &&
+          (best < 0 || probabilities[c] > probabilities[best])) {
+        best = c;
+      }
+    }
+  }
+  if (best < 0) best = std::max_element(probabilities, probabilities + branching) - probabilities;
+  return best;
+}
+
+// The tree node reached from `parent` by `label`; -1 when the path leaves the tree.
+int64_t ChildNode(int64_t parent, int64_t label, const LabelTree& tree) {
+  return parent >= 0 && label < tree.NumChildren(static_cast<uint32_t>(parent))
+             ? tree.FirstChild(static_cast<uint32_t>(parent)) + label
+             : -1;
+}
 
 void WriteInt64Vector(torch::serialize::OutputArchive& archive, const std::string& key,
                       const std::vector<int64_t>& values) {
@@ -118,6 +151,7 @@ void SetComputeThreads(int num_threads) {
   } else {
     torch::set_num_threads(threads);
   }
+  compute_threads.store(threads);
 }
 
 torch::Device TorchDevice(ComputeDevice device) {
@@ -232,6 +266,39 @@ torch::Tensor LevelImpl::ConditionedLinear(int layer, const torch::Tensor& featu
 }
 
 torch::Tensor LevelImpl::Logits(const torch::Tensor& features) { return output_(features); }
+
+LevelWeights LevelImpl::CpuWeights() const {
+  const auto data = [](const torch::Tensor& tensor) -> const float* {
+    if (!tensor.device().is_cpu() || tensor.scalar_type() != torch::kFloat32 ||
+        !tensor.is_contiguous()) {
+      throw std::logic_error("network weights are not contiguous fp32 CPU tensors");
+    }
+    return tensor.data_ptr<float>();
+  };
+  LevelWeights weights;
+  weights.input_scale = static_cast<float>(input_scale_);
+  weights.trunk1_weight = data(trunk1_->weight);
+  weights.trunk1_bias = data(trunk1_->bias);
+  weights.trunk2_weight = data(trunk2_->weight);
+  weights.trunk2_bias = data(trunk2_->bias);
+  weights.image_embedding = data(image_embedding_->weight);
+  for (const torch::nn::Embedding& table : label_embeddings_) {
+    weights.label_embeddings.push_back(data(table->weight));
+  }
+  weights.generator_weight = data(generator_->weight);
+  weights.generator_bias = data(generator_->bias);
+  for (size_t i = 0; i < conditioned_.size(); ++i) {
+    weights.gamma_weights.push_back(data(gamma_heads_[i]->weight));
+    weights.gamma_biases.push_back(data(gamma_heads_[i]->bias));
+    weights.beta_weights.push_back(data(beta_heads_[i]->weight));
+    weights.beta_biases.push_back(data(beta_heads_[i]->bias));
+    weights.conditioned_weights.push_back(data(conditioned_[i]->weight));
+    weights.conditioned_biases.push_back(data(conditioned_[i]->bias));
+  }
+  weights.output_weight = data(output_->weight);
+  weights.output_bias = data(output_->bias);
+  return weights;
+}
 
 torch::Tensor LevelImpl::forward(const torch::Tensor& descriptors,
                                  const torch::Tensor& image_indices,
@@ -397,6 +464,188 @@ double Network::PredictFlops(int64_t num_descriptors, int64_t num_images) const 
   return 2 * per_level * shape().levels;
 }
 
+// ---------------------------------------------------------------------------------------------
+// CPU inference: the forward pass of Predict on the dense kernels, row block by row block. A block
+// of FiLM features, its logits and its softmax stay in cache from modulation to label choice,
+// where libtorch's operator-at-a-time path wrote and reread each [rows, C] intermediate.
+
+namespace {
+
+constexpr int64_t kRowBlock = 128;
+
+// body(begin, end) over blocks of kRowBlock rows, on the compute threads.
+void ForEachRowBlock(int64_t rows, const std::function<void(int64_t begin, int64_t end)>& body) {
+  const int64_t blocks = (rows + kRowBlock - 1) / kRowBlock;
+  ParallelFor(static_cast<size_t>(blocks), compute_threads.load(), [&](size_t first, size_t last) {
+    for (size_t block = first; block < last; ++block) {
+      const int64_t begin = static_cast<int64_t>(block) * kRowBlock;
+      body(begin, std::min(rows, begin + kRowBlock));
+    }
+  });
+}
+
+// Per-thread buffers of one row block, kept between blocks and calls: fresh allocations of this
+// size would each be zeroed and page-faulted in.
+struct BlockScratch {
+  std::vector<float> embedding, generator, features, linear, logits;
+  std::vector<std::vector<float>> gammas, betas;
+  std::vector<int32_t> run_of_row;
+  std::vector<int64_t> descriptor_of_row;
+
+  void Reserve(int64_t rows, int64_t channels, int64_t embedding_dim, int64_t branching,
+               int layers) {
+    const auto grow = [](auto& buffer, int64_t size) {
+      if (static_cast<int64_t>(buffer.size()) < size) buffer.resize(size);
+    };
+    grow(embedding, rows * embedding_dim);
+    grow(generator, rows * embedding_dim);
+    grow(features, rows * channels);
+    grow(linear, rows * channels);
+    grow(logits, rows * branching);
+    grow(run_of_row, rows);
+    grow(descriptor_of_row, rows);
+    if (static_cast<int>(gammas.size()) < layers) {
+      gammas.resize(layers);
+      betas.resize(layers);
+    }
+    for (int layer = 0; layer < layers; ++layer) {
+      grow(gammas[layer], rows * channels);
+      grow(betas[layer], rows * channels);
+    }
+  }
+};
+
+PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& descriptors,
+                              const std::vector<uint32_t>& image_indices, const LabelTree& tree,
+                              const Visibility* visibility_mask) {
+  namespace dk = dense_kernels;
+  const NetworkShape& s = network.shape();
+  const int64_t n = descriptors.rows();
+  const int64_t k = static_cast<int64_t>(image_indices.size());
+  const int64_t rows = n * k;
+  const int64_t d = s.descriptor_dim;
+  const int64_t c = network.options().channels;
+  const int64_t e = network.options().embedding_dim;
+  const int64_t branching = s.branching;
+  PointPredictions result;
+  result.num_images = k;
+  result.num_descriptors = n;
+  result.point_indices.resize(k, n);
+  result.confidences.setOnes(k, n);
+  result.labels.resize(rows, s.levels);
+  if (rows == 0) return result;
+
+  DescriptorMatrix normalized = descriptors;
+  for (int64_t i = 0; i < n; ++i) {
+    normalized.row(i) /= std::max(normalized.row(i).norm(), 1e-12f);
+  }
+  std::unique_ptr<NodeVisibilityMasks> masks;
+  std::vector<int64_t> parent_node;
+  if (visibility_mask != nullptr) {
+    masks = std::make_unique<NodeVisibilityMasks>(image_indices, tree, *visibility_mask);
+    parent_node.assign(rows, 0);
+  }
+
+  uint8_t* labels = result.labels.data();
+  float* confidences = result.confidences.data();
+  std::vector<float> scaled(n * d);
+  std::vector<float> shared(n * c);
+  std::vector<std::pair<int64_t, int64_t>> keyed_rows(rows);  // (image and label prefix, row)
+  for (const Level& level : NetworkInternals::Module(network)->levels) {
+    const int depth = level->level();
+    const LevelWeights w = level->CpuWeights();
+    const int layers = level->NumConditionedLayers();
+
+    // Descriptor-only part, once per keypoint: trunk and the first conditioned layer's W h + b.
+    Eigen::Map<Eigen::ArrayXf>(scaled.data(), n * d) =
+        Eigen::Map<const Eigen::ArrayXf>(normalized.data(), n * d) * w.input_scale;
+    ForEachRowBlock(n, [&](int64_t begin, int64_t end) {
+      const int64_t m = end - begin;
+      thread_local BlockScratch scratch;
+      scratch.Reserve(m, c, e, branching, layers);
+      dk::Linear(scaled.data() + begin * d, m, d, w.trunk1_weight, w.trunk1_bias, c, true,
+                 scratch.features.data());
+      dk::Linear(scratch.features.data(), m, c, w.trunk2_weight, w.trunk2_bias, c, true,
+                 scratch.linear.data());
+      dk::Linear(scratch.linear.data(), m, c, w.conditioned_weights[0], w.conditioned_biases[0], c,
+                 false, shared.data() + begin * c);
+    });
+
+    // Rows with the same image and label prefix share their modulation. Rows are visited in the
+    // order of that key, so a block holds runs of equal keys and evaluates the generator once per
+    // run, and a block's modulation never leaves the cache.
+    for (int64_t r = 0; r < rows; ++r) {
+      int64_t key = image_indices[r / n];
+      for (int column = 0; column < depth; ++column) {
+        key = key * branching + labels[r * s.levels + column];
+      }
+      keyed_rows[r] = {key, r};
+    }
+    std::sort(keyed_rows.begin(), keyed_rows.end());
+
+    ForEachRowBlock(rows, [&](int64_t begin, int64_t end) {
+      const int64_t m = end - begin;
+      thread_local BlockScratch scratch;
+      scratch.Reserve(m, c, e, branching, layers);
+      int64_t runs = 0;
+      for (int64_t i = begin; i < end; ++i) {
+        if (i == begin || keyed_rows[i].first != keyed_rows[i - 1].first) {
+          // The generator input of the run: image embedding plus the coarser labels' embeddings.
+          const int64_t r = keyed_rows[i].second;
+          auto sum = Eigen::Map<Eigen::VectorXf>(scratch.embedding.data() + runs * e, e);
+          sum = Eigen::Map<const Eigen::VectorXf>(w.image_embedding + image_indices[r / n] * e, e);
+          for (int column = 0; column < depth; ++column) {
+            sum += Eigen::Map<const Eigen::VectorXf>(
+                w.label_embeddings[column] + labels[r * s.levels + column] * e, e);
+          }
+          ++runs;
+        }
+        scratch.run_of_row[i - begin] = static_cast<int32_t>(runs - 1);
+        scratch.descriptor_of_row[i - begin] = keyed_rows[i].second % n;
+      }
+      dk::EluInPlace(scratch.embedding.data(), runs * e);
+      dk::Linear(scratch.embedding.data(), runs, e, w.generator_weight, w.generator_bias, e, true,
+                 scratch.generator.data());
+      for (int layer = 0; layer < layers; ++layer) {
+        dk::Linear(scratch.generator.data(), runs, e, w.gamma_weights[layer], w.gamma_biases[layer],
+                   c, false, scratch.gammas[layer].data());
+        dk::Linear(scratch.generator.data(), runs, e, w.beta_weights[layer], w.beta_biases[layer],
+                   c, false, scratch.betas[layer].data());
+      }
+
+      dk::ModulateElu(shared.data(), scratch.descriptor_of_row.data(), scratch.gammas[0].data(),
+                      scratch.betas[0].data(), scratch.run_of_row.data(), m, c,
+                      scratch.features.data());
+      for (int layer = 1; layer < layers; ++layer) {
+        dk::Linear(scratch.features.data(), m, c, w.conditioned_weights[layer],
+                   w.conditioned_biases[layer], c, false, scratch.linear.data());
+        dk::ModulateElu(scratch.linear.data(), nullptr, scratch.gammas[layer].data(),
+                        scratch.betas[layer].data(), scratch.run_of_row.data(), m, c,
+                        scratch.features.data());
+      }
+      dk::Linear(scratch.features.data(), m, c, w.output_weight, w.output_bias, branching, false,
+                 scratch.logits.data());
+      dk::SoftmaxRowsInPlace(scratch.logits.data(), m, branching);
+      for (int64_t i = begin; i < end; ++i) {
+        const int64_t r = keyed_rows[i].second;
+        const float* probabilities = scratch.logits.data() + (i - begin) * branching;
+        const int slot = masks ? masks->SlotOfK(static_cast<size_t>(r / n)) : -1;
+        const int64_t parent = masks ? parent_node[r] : -1;
+        const int64_t best = ChooseLabel(probabilities, branching, masks.get(), slot, parent, tree);
+        labels[r * s.levels + depth] = static_cast<uint8_t>(best);
+        confidences[r] *= probabilities[best];
+        if (masks) parent_node[r] = ChildNode(parent, best, tree);
+      }
+    });
+  }
+  for (int64_t r = 0; r < rows; ++r) {
+    result.point_indices.data()[r] = tree.PointOfLabels(labels + r * s.levels);
+  }
+  return result;
+}
+
+}  // namespace
+
 PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
                                   const std::vector<uint32_t>& image_indices, const LabelTree& tree,
                                   const Visibility* visibility_mask) const {
@@ -422,6 +671,20 @@ PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
                          tree.NumPoints());
   }
 
+  if (impl_->device == ComputeDevice::kCpu) {
+    return PredictOnCpu(*this, descriptors, image_indices, tree, visibility_mask);
+  }
+  return NetworkInternals::PredictWithTorch(*this, descriptors, image_indices, tree,
+                                            visibility_mask);
+}
+
+PointPredictions NetworkInternals::PredictWithTorch(const Network& network,
+                                                    const DescriptorMatrix& descriptors,
+                                                    const std::vector<uint32_t>& image_indices,
+                                                    const LabelTree& tree,
+                                                    const Visibility* visibility_mask) {
+  const NetworkShape& s = network.shape();
+  Network::Impl* impl = network.impl_.get();
   const int64_t n = descriptors.rows();
   const int64_t k = static_cast<int64_t>(image_indices.size());
   const int64_t rows = n * k;
@@ -434,7 +697,7 @@ PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
   if (rows == 0) return result;
 
   c10::InferenceMode inference_mode;
-  const torch::Device device = TorchDevice(impl_->device);
+  const torch::Device device = TorchDevice(impl->device);
   const auto long_options = torch::TensorOptions().dtype(torch::kInt64).device(device);
   const torch::Tensor x = NormalizeRows(torch::from_blob(const_cast<float*>(descriptors.data()),
                                                          {n, s.descriptor_dim}, torch::kFloat32)
@@ -454,7 +717,7 @@ PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
 
   torch::Tensor labels = torch::empty({rows, 0}, long_options);
   torch::Tensor confidence = torch::ones({rows}, torch::TensorOptions().device(device));
-  for (Level& level : impl_->module->levels) {
+  for (Level& level : impl->module->levels) {
     const int depth = level->level();
     const torch::Tensor shared_linear = level->ConditionedLinear(0, level->Trunk(x));
 
@@ -495,23 +758,10 @@ PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
           const float* row = p + r * branching;
           const int slot = masks->SlotOfK(static_cast<size_t>(r / n));
           const int64_t parent = parent_node[r];
-          int64_t best = -1;
-          if (slot >= 0 && parent >= 0) {
-            const uint32_t first = tree.FirstChild(static_cast<uint32_t>(parent));
-            const int64_t children = tree.NumChildren(static_cast<uint32_t>(parent));
-            for (int64_t c = 0; c < children; ++c) {
-              if (masks->Contains(slot, first + static_cast<uint32_t>(c)) &&
-                  (best < 0 || row[c] > row[best])) {
-                best = c;
-              }
-            }
-          }
-          if (best < 0) best = std::max_element(row, row + branching) - row;
+          const int64_t best = ChooseLabel(row, branching, masks.get(), slot, parent, tree);
           chosen_data[r] = best;
           probability_data[r] = row[best];
-          parent_node[r] = parent >= 0 && best < tree.NumChildren(static_cast<uint32_t>(parent))
-                               ? tree.FirstChild(static_cast<uint32_t>(parent)) + best
-                               : -1;
+          parent_node[r] = ChildNode(parent, best, tree);
         }
       });
       chosen = chosen.to(device);

@@ -46,7 +46,8 @@ ComputeDevice ParseComputeDevice(const std::string& name);
 std::string ComputeDeviceName(ComputeDevice device);
 bool IsComputeDeviceAvailable(ComputeDevice device);
 
-// Sets the CPU threads of libtorch for the whole process (<= 0: all cores). Where libtorch's
+// Sets the CPU threads of libtorch and of Predict's CPU kernels for the whole process (<= 0: all
+// cores). Where libtorch's
 // matrix products run in OpenBLAS's own thread pool (Debian's libtorch), OpenBLAS gets the threads
 // and libtorch's OpenMP pool one: both pools spin while waiting, and on shared cores they starve
 // each other (training 4 to 25 times slower, docs/decisions.md).

@@ -17,6 +17,25 @@ struct LevelModulation {
   std::vector<torch::Tensor> betas;
 };
 
+// Raw views of one level's weights, for the CPU inference kernels (model/dense_kernels.h). Linear
+// weights are [out, in] row-major, as torch.nn.Linear stores them; valid while the module lives
+// and its parameters are not replaced.
+struct LevelWeights {
+  float input_scale = 1;
+  const float* trunk1_weight = nullptr;
+  const float* trunk1_bias = nullptr;
+  const float* trunk2_weight = nullptr;
+  const float* trunk2_bias = nullptr;
+  const float* image_embedding = nullptr;      // [num_images + 1, E]
+  std::vector<const float*> label_embeddings;  // one [branching, E] table per coarser level
+  const float* generator_weight = nullptr;
+  const float* generator_bias = nullptr;
+  std::vector<const float*> gamma_weights, gamma_biases, beta_weights, beta_biases;
+  std::vector<const float*> conditioned_weights, conditioned_biases;
+  const float* output_weight = nullptr;
+  const float* output_bias = nullptr;
+};
+
 // One level of the network (see model/network.h for the equations).
 class LevelImpl : public torch::nn::Module {
  public:
@@ -29,6 +48,8 @@ class LevelImpl : public torch::nn::Module {
   // W_i h + b_i of conditioned layer i.
   torch::Tensor ConditionedLinear(int layer, const torch::Tensor& features);
   torch::Tensor Logits(const torch::Tensor& features);
+  // Throws std::logic_error unless every parameter is a contiguous fp32 CPU tensor.
+  LevelWeights CpuWeights() const;
 
   // Teacher-forced logits [R, branching] of R (descriptor, image, prefix) rows.
   torch::Tensor forward(const torch::Tensor& descriptors, const torch::Tensor& image_indices,
@@ -87,6 +108,13 @@ struct NetworkInternals {
   static void SaveTo(const Network& network, torch::serialize::OutputArchive& archive);
   static Network LoadFrom(torch::serialize::InputArchive& archive, const std::string& source,
                           ComputeDevice device);
+  // Predict through libtorch operators (the CUDA path), whatever the device: the reference the
+  // CPU kernels are tested against.
+  static PointPredictions PredictWithTorch(const Network& network,
+                                           const DescriptorMatrix& descriptors,
+                                           const std::vector<uint32_t>& image_indices,
+                                           const LabelTree& tree,
+                                           const Visibility* visibility_mask);
 };
 
 }  // namespace hscloc

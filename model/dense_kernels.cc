@@ -1,0 +1,100 @@
+// See dense_kernels.h for why Eigen is renamed here: this file is compiled with its own -march,
+// and its Eigen instantiations must not be merged with the baseline ones of other files.
+#define Eigen HsclocKernelEigen
+#include <Eigen/Core>
+#undef Eigen
+
+#include <algorithm>
+
+#include "model/dense_kernels.h"
+
+namespace hscloc::dense_kernels {
+namespace {
+
+namespace E = HsclocKernelEigen;
+namespace ei = HsclocKernelEigen::internal;
+using RowMajorMatrix = E::Matrix<float, E::Dynamic, E::Dynamic, E::RowMajor>;
+using ConstMatrixMap = E::Map<const RowMajorMatrix>;
+using MatrixMap = E::Map<RowMajorMatrix>;
+using Packet = ei::packet_traits<float>::type;
+constexpr int64_t kLanes = ei::unpacket_traits<Packet>::size;
+
+// Element-wise work runs on whole packets only, the tail padded into a packet of its own. Eigen's
+// array expressions instead peel a scalar head until the data is aligned, and scalar exp() rounds
+// differently from the vector one: a value's result would depend on where its row sits in memory,
+// and one query could get different confidences from one call to the next.
+template <typename PacketOp>
+void ForEachPacket(const float* in, int64_t count, float* out, const PacketOp& op) {
+  int64_t i = 0;
+  for (; i + kLanes <= count; i += kLanes) ei::pstoreu(out + i, op(ei::ploadu<Packet>(in + i)));
+  if (i < count) {
+    alignas(64) float tail[kLanes] = {};
+    std::copy(in + i, in + count, tail);
+    ei::pstore(tail, op(ei::pload<Packet>(tail)));
+    std::copy(tail, tail + (count - i), out + i);
+  }
+}
+
+// ELU as max(x, 0) + exp(min(x, 0)) - 1, branch-free.
+Packet Elu(const Packet& x) {
+  const Packet zero = ei::pzero(x);
+  return ei::padd(ei::pmax(x, zero), ei::psub(ei::pexp(ei::pmin(x, zero)), ei::pset1<Packet>(1)));
+}
+
+}  // namespace
+
+void Linear(const float* in, int64_t m, int64_t k, const float* weight, const float* bias,
+            int64_t n, bool elu, float* out) {
+  const ConstMatrixMap input(in, m, k);
+  const ConstMatrixMap weights(weight, n, k);
+  MatrixMap output(out, m, n);
+  output.noalias() = input * weights.transpose();
+  output.rowwise() += E::Map<const E::RowVectorXf>(bias, n);
+  if (elu) EluInPlace(out, m * n);
+}
+
+void ModulateElu(const float* source, const int64_t* source_rows, const float* gamma,
+                 const float* beta, const int32_t* modulation_rows, int64_t rows, int64_t columns,
+                 float* out) {
+  for (int64_t r = 0; r < rows; ++r) {
+    const float* x = source + (source_rows != nullptr ? source_rows[r] : r) * columns;
+    const float* g = gamma + int64_t{modulation_rows[r]} * columns;
+    const float* b = beta + int64_t{modulation_rows[r]} * columns;
+    float* y = out + r * columns;
+    int64_t i = 0;
+    for (; i + kLanes <= columns; i += kLanes) {
+      ei::pstoreu(y + i, Elu(ei::pmadd(ei::ploadu<Packet>(g + i), ei::ploadu<Packet>(x + i),
+                                       ei::ploadu<Packet>(b + i))));
+    }
+    for (; i < columns; ++i) {
+      alignas(64) float lane[kLanes] = {};
+      lane[0] = g[i] * x[i] + b[i];
+      ei::pstore(lane, Elu(ei::pload<Packet>(lane)));
+      y[i] = lane[0];
+    }
+  }
+}
+
+void EluInPlace(float* values, int64_t count) { ForEachPacket(values, count, values, Elu); }
+
+void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns) {
+  for (int64_t r = 0; r < rows; ++r) {
+    float* row = values + r * columns;
+    const float max = *std::max_element(row, row + columns);
+    const Packet shift = ei::pset1<Packet>(max);
+    ForEachPacket(row, columns, row, [&](const Packet& x) { return ei::pexp(ei::psub(x, shift)); });
+    // A fixed summation order: packets from the row's start, then the lanes within a packet.
+    Packet sums = ei::pset1<Packet>(0);
+    int64_t i = 0;
+    for (; i + kLanes <= columns; i += kLanes) sums = ei::padd(sums, ei::ploadu<Packet>(row + i));
+    alignas(64) float tail[kLanes] = {};
+    std::copy(row + i, row + columns, tail);
+    sums = ei::padd(sums, ei::pload<Packet>(tail));
+    const Packet inverse = ei::pset1<Packet>(1.f / ei::predux(sums));
+    ForEachPacket(row, columns, row, [&](const Packet& x) { return ei::pmul(x, inverse); });
+  }
+}
+
+const char* KernelInstructionSets() { return E::SimdInstructionSetsInUse(); }
+
+}  // namespace hscloc::dense_kernels

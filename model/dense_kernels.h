@@ -1,0 +1,36 @@
+// The dense fp32 kernels of the network's CPU inference: matrix products, the FiLM modulation with
+// its ELU, and row softmax, on raw row-major arrays.
+//
+// They are compiled for the build machine's instruction set (CMake HSCLOC_KERNEL_ARCH, "native" by
+// default: AVX-512 where the CPU has it), while the rest of hscloc keeps the distribution's
+// baseline, which libraries such as Ceres share. Their Eigen lives in a namespace of its own, so
+// no Eigen symbol compiled for the wider instruction set can stand in for one compiled without it.
+// That is why this header exposes pointers only, and why the kernels are single-threaded: callers
+// split rows across threads.
+#pragma once
+
+#include <cstdint>
+
+namespace hscloc::dense_kernels {
+
+// out[m x n] = in[m x k] * weight[n x k]^T + bias[n] (weight as torch.nn.Linear stores it), then
+// ELU where `elu`. `out` must not alias `in`.
+void Linear(const float* in, int64_t m, int64_t k, const float* weight, const float* bias,
+            int64_t n, bool elu, float* out);
+
+// out[r, :] = ELU(gamma[modulation_rows[r], :] * source[source_rows[r], :] +
+//                 beta[modulation_rows[r], :]) for r < rows, all rows of `columns` floats;
+// source_rows == nullptr means row r of `source`.
+void ModulateElu(const float* source, const int64_t* source_rows, const float* gamma,
+                 const float* beta, const int32_t* modulation_rows, int64_t rows, int64_t columns,
+                 float* out);
+
+void EluInPlace(float* values, int64_t count);
+
+// Each of `rows` rows of `columns` values replaced by its softmax.
+void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns);
+
+// The SIMD instruction sets the kernels were compiled for, e.g. "AVX512, FMA, AVX2, ...".
+const char* KernelInstructionSets();
+
+}  // namespace hscloc::dense_kernels

@@ -1,0 +1,119 @@
+#include "model/dense_kernels.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "util/random.h"
+
+namespace hscloc {
+namespace {
+
+using RowMajor = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+std::vector<float> Normal(int64_t count, Random& random) {
+  std::vector<float> values(count);
+  for (float& value : values) value = static_cast<float>(random.Normal());
+  return values;
+}
+
+float EluReference(float x) { return x > 0 ? x : std::expm1(x); }
+
+TEST(DenseKernelsTest, LinearMatchesAReferenceProductForAnyShape) {
+  Random random(1);
+  for (int64_t m : {1, 3, 17, 128}) {
+    for (int64_t k : {5, 16, 40}) {
+      for (int64_t n : {1, 12, 100}) {
+        for (bool elu : {false, true}) {
+          const std::vector<float> in = Normal(m * k, random);
+          const std::vector<float> weight = Normal(n * k, random);
+          const std::vector<float> bias = Normal(n, random);
+          std::vector<float> out(m * n);
+          dense_kernels::Linear(in.data(), m, k, weight.data(), bias.data(), n, elu, out.data());
+          RowMajor expected = Eigen::Map<const RowMajor>(in.data(), m, k) *
+                              Eigen::Map<const RowMajor>(weight.data(), n, k).transpose();
+          expected.rowwise() += Eigen::Map<const Eigen::RowVectorXf>(bias.data(), n);
+          if (elu) expected = expected.unaryExpr(&EluReference);
+          const float error =
+              (Eigen::Map<const RowMajor>(out.data(), m, n) - expected).cwiseAbs().maxCoeff();
+          EXPECT_LT(error, 1e-4f * std::sqrt(float(k))) << m << "x" << k << "x" << n;
+        }
+      }
+    }
+  }
+}
+
+TEST(DenseKernelsTest, ModulateEluGathersRowsAndModulates) {
+  Random random(2);
+  const int64_t columns = 37;  // not a multiple of any vector width: exercises the tail
+  const std::vector<float> source = Normal(6 * columns, random);
+  const std::vector<float> gamma = Normal(3 * columns, random);
+  const std::vector<float> beta = Normal(3 * columns, random);
+  const std::vector<int64_t> source_rows = {5, 0, 5, 2};
+  const std::vector<int32_t> modulation_rows = {2, 2, 0, 1};
+  std::vector<float> out(4 * columns);
+  dense_kernels::ModulateElu(source.data(), source_rows.data(), gamma.data(), beta.data(),
+                             modulation_rows.data(), 4, columns, out.data());
+  for (int64_t r = 0; r < 4; ++r) {
+    for (int64_t i = 0; i < columns; ++i) {
+      const int64_t g = modulation_rows[r] * columns + i;
+      const float expected =
+          EluReference(gamma[g] * source[source_rows[r] * columns + i] + beta[g]);
+      EXPECT_NEAR(out[r * columns + i], expected, 1e-5f) << r << ", " << i;
+    }
+  }
+}
+
+TEST(DenseKernelsTest, SoftmaxRowsArePositiveAndSumToOne) {
+  Random random(3);
+  const int64_t rows = 5;
+  const int64_t columns = 100;
+  std::vector<float> values = Normal(rows * columns, random);
+  values[7] = 80;  // large logits must not overflow
+  const std::vector<float> logits = values;
+  dense_kernels::SoftmaxRowsInPlace(values.data(), rows, columns);
+  for (int64_t r = 0; r < rows; ++r) {
+    const float* row = values.data() + r * columns;
+    double sum = 0;
+    for (int64_t i = 0; i < columns; ++i) {
+      EXPECT_GE(row[i], 0);
+      sum += row[i];
+    }
+    EXPECT_NEAR(sum, 1.0, 1e-5);
+    const int64_t argmax_in =
+        std::max_element(logits.begin() + r * columns, logits.begin() + (r + 1) * columns) -
+        (logits.begin() + r * columns);
+    EXPECT_EQ(std::max_element(row, row + columns) - row, argmax_in);
+  }
+}
+
+// A row's result must not depend on its address: the same values at every offset within a
+// cache line give bit-identical outputs.
+TEST(DenseKernelsTest, ResultsDoNotDependOnAlignment) {
+  Random random(4);
+  const int64_t columns = 100;
+  const std::vector<float> row = Normal(columns, random);
+  std::vector<float> first_softmax;
+  std::vector<float> first_elu;
+  for (int offset = 0; offset < 16; ++offset) {
+    std::vector<float> buffer(offset + columns);
+    std::copy(row.begin(), row.end(), buffer.begin() + offset);
+    std::vector<float> elu_buffer = buffer;
+    dense_kernels::SoftmaxRowsInPlace(buffer.data() + offset, 1, columns);
+    dense_kernels::EluInPlace(elu_buffer.data() + offset, columns);
+    const std::vector<float> softmax(buffer.begin() + offset, buffer.end());
+    const std::vector<float> elu(elu_buffer.begin() + offset, elu_buffer.end());
+    if (offset == 0) {
+      first_softmax = softmax;
+      first_elu = elu;
+    }
+    EXPECT_EQ(softmax, first_softmax) << "offset " << offset;
+    EXPECT_EQ(elu, first_elu) << "offset " << offset;
+  }
+}
+
+}  // namespace
+}  // namespace hscloc

@@ -1,0 +1,120 @@
+// The CPU inference kernels against libtorch's operators, which the CUDA path runs: the same
+// weights must give the same labels and confidences.
+#include <gtest/gtest.h>
+
+#include "model/network.h"
+#include "model/network_module.h"
+#include "util/random.h"
+
+namespace hscloc {
+namespace {
+
+struct Fixture {
+  LabelTree tree;
+  Visibility visibility;
+  NetworkShape shape;
+};
+
+Fixture MakeFixture() {
+  Random random(11);
+  std::vector<Eigen::Vector3d> points(900);
+  for (Eigen::Vector3d& point : points) {
+    point = {random.Uniform(0, 80), random.Uniform(0, 80), random.Uniform(0, 15)};
+  }
+  LabelTreeOptions tree_options;
+  tree_options.levels = 3;
+  tree_options.branching = 10;
+  tree_options.show_progress = false;
+  tree_options.num_threads = 1;
+  Fixture fixture;
+  fixture.tree = LabelTree::Build(points, tree_options);
+  const uint32_t num_images = 12;
+  std::vector<uint32_t> image_of_entry;
+  std::vector<uint32_t> point_of_entry;
+  for (uint32_t image = 0; image < num_images; ++image) {
+    for (uint32_t point = 0; point < points.size(); ++point) {
+      if (random.Bernoulli(0.15)) {
+        image_of_entry.push_back(image);
+        point_of_entry.push_back(point);
+      }
+    }
+  }
+  fixture.visibility =
+      Visibility::FromObservations(num_images, points.size(), image_of_entry, point_of_entry);
+  fixture.shape = {40, tree_options.levels, tree_options.branching, static_cast<int>(num_images)};
+  return fixture;
+}
+
+DescriptorMatrix RandomDescriptors(int64_t rows, int64_t dim, uint64_t seed) {
+  Random random(seed);
+  DescriptorMatrix descriptors(rows, dim);
+  for (int64_t i = 0; i < descriptors.size(); ++i) {
+    descriptors.data()[i] = static_cast<float>(random.Normal() * 3);
+  }
+  return descriptors;
+}
+
+// Rows whose label paths agree; a near tie between two children may flip under a different
+// summation order, so a handful of disagreements is allowed, but the confidences of agreeing rows
+// must match to float precision.
+void ExpectSamePredictions(const PointPredictions& kernels, const PointPredictions& torch_ops) {
+  ASSERT_EQ(kernels.labels.rows(), torch_ops.labels.rows());
+  int64_t agreeing = 0;
+  for (int64_t r = 0; r < kernels.labels.rows(); ++r) {
+    if (kernels.labels.row(r) != torch_ops.labels.row(r)) continue;
+    ++agreeing;
+    EXPECT_NEAR(kernels.confidences.data()[r], torch_ops.confidences.data()[r],
+                1e-4f * torch_ops.confidences.data()[r] + 1e-7f)
+        << "row " << r;
+    EXPECT_EQ(kernels.point_indices.data()[r], torch_ops.point_indices.data()[r]);
+  }
+  EXPECT_GE(agreeing, kernels.labels.rows() * 995 / 1000) << "of " << kernels.labels.rows();
+}
+
+TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
+  const Fixture fixture = MakeFixture();
+  const DescriptorMatrix descriptors = RandomDescriptors(333, fixture.shape.descriptor_dim, 5);
+  const std::vector<uint32_t> images = {4, 0, 11, 4, 12, 7};
+  for (int layers = 1; layers <= 3; ++layers) {
+    NetworkOptions options;
+    options.channels = 48;
+    options.embedding_dim = 24;
+    options.conditioned_layers = layers;
+    const Network network(fixture.shape, options, 100 + layers);
+    for (const Visibility* mask : {static_cast<const Visibility*>(nullptr), &fixture.visibility}) {
+      SCOPED_TRACE(testing::Message()
+                   << layers << " conditioned layers, mask " << (mask != nullptr));
+      ExpectSamePredictions(
+          network.Predict(descriptors, images, fixture.tree, mask),
+          NetworkInternals::PredictWithTorch(network, descriptors, images, fixture.tree, mask));
+    }
+  }
+}
+
+TEST(NetworkCpuInferenceTest, ThreadCountDoesNotChangeResults) {
+  const Fixture fixture = MakeFixture();
+  const DescriptorMatrix descriptors = RandomDescriptors(700, fixture.shape.descriptor_dim, 6);
+  const std::vector<uint32_t> images = {1, 2, 3, 5, 8};
+  const Network network(fixture.shape, NetworkOptions{32, 16, 2}, 7);
+  SetComputeThreads(1);
+  const PointPredictions one = network.Predict(descriptors, images, fixture.tree);
+  SetComputeThreads(3);
+  const PointPredictions three = network.Predict(descriptors, images, fixture.tree);
+  SetComputeThreads(0);
+  EXPECT_EQ(one.labels, three.labels);
+  EXPECT_EQ(one.confidences, three.confidences);
+}
+
+TEST(NetworkCpuInferenceTest, EmptyQueriesGiveEmptyPredictions) {
+  const Fixture fixture = MakeFixture();
+  const Network network(fixture.shape, NetworkOptions{32, 16, 1}, 8);
+  const PointPredictions no_keypoints =
+      network.Predict(DescriptorMatrix(0, fixture.shape.descriptor_dim), {1, 2}, fixture.tree);
+  EXPECT_EQ(no_keypoints.point_indices.size(), 0);
+  const PointPredictions no_images =
+      network.Predict(RandomDescriptors(5, fixture.shape.descriptor_dim, 9), {}, fixture.tree);
+  EXPECT_EQ(no_images.point_indices.size(), 0);
+}
+
+}  // namespace
+}  // namespace hscloc
