@@ -17,6 +17,7 @@
 #include "model/network_module.h"
 #include "util/check.h"
 #include "util/parallel.h"
+#include "util/timer.h"
 
 namespace hscloc {
 namespace {
@@ -552,6 +553,7 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
   std::vector<float> shared(n * c);
   std::vector<std::pair<int64_t, int64_t>> keyed_rows(rows);  // (image and label prefix, row)
   for (const Level& level : NetworkInternals::Module(network)->levels) {
+    const Timer level_timer;
     const int depth = level->level();
     const LevelWeights w = level->CpuWeights();
     const int layers = level->NumConditionedLayers();
@@ -637,6 +639,7 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
         if (masks) parent_node[r] = ChildNode(parent, best, tree);
       }
     });
+    result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
   }
   for (int64_t r = 0; r < rows; ++r) {
     result.point_indices.data()[r] = tree.PointOfLabels(labels + r * s.levels);
@@ -718,6 +721,7 @@ PointPredictions NetworkInternals::PredictWithTorch(const Network& network,
   torch::Tensor labels = torch::empty({rows, 0}, long_options);
   torch::Tensor confidence = torch::ones({rows}, torch::TensorOptions().device(device));
   for (Level& level : impl->module->levels) {
+    const Timer level_timer;
     const int depth = level->level();
     const torch::Tensor shared_linear = level->ConditionedLinear(0, level->Trunk(x));
 
@@ -771,6 +775,7 @@ PointPredictions NetworkInternals::PredictWithTorch(const Network& network,
     }
     labels = torch::cat({labels, chosen.unsqueeze(1)}, 1);
     confidence = confidence * chosen_probability;
+    result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
   }
 
   const torch::Tensor cpu_labels = labels.to(torch::kCPU).to(torch::kUInt8).contiguous();

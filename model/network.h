@@ -85,6 +85,8 @@ struct PointPredictions {
   Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> confidences;  // K x N
   // The predicted label path of every (k, n).
   Eigen::Matrix<uint8_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> labels;  // K*N x levels
+  // Wall time of each level of the forward pass, coarsest first (where the time goes).
+  std::vector<double> level_milliseconds;
 };
 
 class Network {

@@ -11,7 +11,9 @@ void SetupLogging(const std::string& level) {
   // from_str maps unknown names to "off"; only "off" itself may mean off.
   THROW_CHECK_MSG(parsed != spdlog::level::off || level == "off",
                   "unknown log level '{}' (trace, debug, info, warn, error, off)", level);
-  auto logger = spdlog::stderr_color_mt("hscloc");
+  // A second call (a tool that runs several stages, a test) changes the level of the same logger.
+  std::shared_ptr<spdlog::logger> logger = spdlog::get("hscloc");
+  if (logger == nullptr) logger = spdlog::stderr_color_mt("hscloc");
   logger->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
   logger->set_level(parsed);
   spdlog::set_default_logger(logger);
