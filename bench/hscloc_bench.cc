@@ -3,6 +3,8 @@
 // report (default docs/performance.md), its SVG plots beside it, and the raw numbers as JSON.
 //
 //   hscloc-bench [--quick] [--work DIR] [--data DIR] [--report FILE] [--json FILE]
+//   hscloc-bench --scale-only PRESET [--train-minutes M]   one row of the scale table
+//   hscloc-bench --from-json                               the report from the JSON alone
 //
 // Steps: the machine's fp32 GEMM peak (libtorch and hscloc's Eigen kernels); synthetic maps made
 // with the `hscloc` tool as a user would (synth, build-map, train; wall time and peak memory of
@@ -55,7 +57,9 @@ using nlohmann::json;
 
 struct BenchOptions {
   bool quick = false;
-  bool from_json = false;  // only rewrite the report from the JSON file's numbers
+  bool from_json = false;    // only rewrite the report from the JSON file's numbers
+  std::string scale_only;    // only measure this preset's scale row, into the existing JSON
+  double train_minutes = 0;  // training budget of --scale-only (0: the full run's)
   fs::path work = "bench-work";
   fs::path data = HSCLOC_DEFAULT_DATA_DIR;
   fs::path report = "docs/performance.md";
@@ -888,7 +892,8 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
   for (const json& row : results["scale"]) {
     md << fmt::format(
         "| {}{} | {} | {} | {} | {:.0f} s | {:.0f} MB | {:.0f} s | {:.0f} MB | {} | {:.0f} ms |\n",
-        row["preset"].get<std::string>(), row.contains("carried_from") ? " (last full run)" : "",
+        row["preset"].get<std::string>(),
+        row.contains("measured") ? " (measured " + row["measured"].get<std::string>() + ")" : "",
         row["images"].get<int64_t>(), row["points"].get<int64_t>(),
         row["observations"].get<int64_t>(), row["build_map_s"].get<double>(),
         row["build_map_peak_mb"].get<double>(), row["train_s"].get<double>(),
@@ -932,6 +937,30 @@ int Run(const BenchOptions& options) {
     std::ifstream stream(json_path);
     previous = json::parse(stream, nullptr, false);
   }
+  if (!options.scale_only.empty()) {
+    // One preset's row of the scale table, measured now and put into the existing numbers.
+    if (!previous.is_object() || !previous.contains("scale")) {
+      throw std::invalid_argument("--scale-only needs an existing report JSON: " +
+                                  json_path.string());
+    }
+    fs::create_directories(options.work);
+    SetupLogging("warn");
+    const SyntheticMap map = MakeSyntheticMap(
+        options, options.scale_only, options.train_minutes > 0 ? options.train_minutes : 30);
+    json row = MeasureMap(map, 20, nullptr, previous["machine"], false);
+    row["measured"] = Today();
+    json scale = json::array();
+    for (const json& existing : previous["scale"]) {
+      if (existing["preset"] != options.scale_only) scale.push_back(existing);
+    }
+    scale.push_back(row);
+    previous["scale"] = scale;
+    std::ofstream(json_path) << previous.dump(2) << '\n';
+    std::ofstream(options.report) << WriteReport(previous, fs::absolute(options.report));
+    Step(fmt::format("added {} to {} and {}", options.scale_only, json_path.string(),
+                     options.report.string()));
+    return 0;
+  }
   fs::create_directories(options.work);
   SetupLogging("warn");
   json results = {
@@ -965,7 +994,7 @@ int Run(const BenchOptions& options) {
   } else if (previous.is_object() && previous.contains("scale")) {
     for (json row : previous["scale"]) {
       if (row["preset"] == "aachen") {
-        row["carried_from"] = previous.value("date", "unknown");
+        if (!row.contains("measured")) row["measured"] = previous.value("date", "unknown");
         results["scale"].push_back(row);
       }
     }
@@ -990,6 +1019,12 @@ int main(int argc, char** argv) {
                "Brief training, fewer queries, no aachen preset (under 5 minutes)");
   app.add_flag("--from-json", options.from_json,
                "Measure nothing: rewrite the report from the JSON file's numbers");
+  app.add_option("--scale-only", options.scale_only,
+                 "Measure one preset's row of the scale table (e.g. aachen) into the existing "
+                 "JSON, then rewrite the report")
+      ->check(CLI::IsMember({"small", "city", "aachen"}));
+  app.add_option("--train-minutes", options.train_minutes,
+                 "Training budget for --scale-only (default: the full run's, 30 for aachen)");
   app.add_option("--work", work, "Scratch directory for maps and logs")
       ->default_str(options.work.string());
   app.add_option("--data", data, "Real test data (fountain-P11, lund)")
