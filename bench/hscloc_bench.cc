@@ -14,26 +14,21 @@
 // image_registrator on real and synthetic sets; cost against map size. --quick trains briefly,
 // times fewer queries and leaves the aachen preset out (its numbers are carried over from the last
 // full run when the JSON file has them).
-#include <fcntl.h>
 #include <fmt/format.h>
-#include <fmt/ranges.h>
-#include <sys/resource.h>
-#include <sys/wait.h>
 #include <torch/torch.h>
-#include <unistd.h>
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
-#include <chrono>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <mutex>
 #include <nlohmann/json.hpp>
-#include <sstream>
 #include <thread>
 
+#include "bench/bench_support.h"
+#include "bench/performance_report.h"
 #include "client/localization_client.h"
 #include "model/colmap_io.h"
 #include "model/dense_kernels.h"
@@ -49,7 +44,7 @@
 #include "util/random.h"
 #include "util/timer.h"
 
-namespace hscloc {
+namespace hscloc::bench {
 namespace {
 
 namespace fs = std::filesystem;
@@ -67,98 +62,6 @@ struct BenchOptions {
   std::string hscloc = HSCLOC_TOOL_PATH;
   std::string colmap = "colmap";
 };
-
-Timer& RunClock() {
-  static Timer timer;
-  return timer;
-}
-
-void Step(const std::string& message) {
-  std::cerr << fmt::format("[{:6.1f} s] {}\n", RunClock().ElapsedSeconds(), message) << std::flush;
-}
-
-double Percentile(std::vector<double> values, double fraction) {
-  if (values.empty()) return std::nan("");
-  std::sort(values.begin(), values.end());
-  const double position = fraction * (values.size() - 1);
-  const size_t below = static_cast<size_t>(position);
-  const size_t above = std::min(values.size() - 1, below + 1);
-  return values[below] + (position - below) * (values[above] - values[below]);
-}
-
-double Mean(const std::vector<double>& values) {
-  double sum = 0;
-  for (const double value : values) sum += value;
-  return values.empty() ? std::nan("") : sum / values.size();
-}
-
-// ---------------------------------------------------------------------------------------------
-// Child processes: the real command-line tools, timed, with their peak memory.
-
-struct ChildRun {
-  double seconds = 0;
-  double peak_rss_mb = 0;
-};
-
-std::string FileTail(const fs::path& path, size_t bytes) {
-  std::ifstream stream(path, std::ios::binary);
-  const std::string text((std::istreambuf_iterator<char>(stream)), {});
-  return text.size() > bytes ? text.substr(text.size() - bytes) : text;
-}
-
-// Runs `args` with stdout and stderr into `log`; throws with the log's tail when it fails.
-ChildRun RunChild(const std::vector<std::string>& args, const fs::path& log) {
-  fs::create_directories(log.parent_path());
-  Timer timer;
-  const pid_t pid = fork();
-  if (pid < 0) throw std::runtime_error("fork failed");
-  if (pid == 0) {
-    const int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (fd >= 0) {
-      dup2(fd, STDOUT_FILENO);
-      dup2(fd, STDERR_FILENO);
-    }
-    std::vector<char*> argv;
-    for (const std::string& arg : args) argv.push_back(const_cast<char*>(arg.c_str()));
-    argv.push_back(nullptr);
-    execvp(argv[0], argv.data());
-    std::fprintf(stderr, "cannot run %s\n", argv[0]);
-    _exit(127);
-  }
-  int status = 0;
-  rusage usage{};
-  wait4(pid, &status, 0, &usage);
-  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
-    throw std::runtime_error(fmt::format("`{} {}` failed (log {}):\n{}", args[0],
-                                         args.size() > 1 ? args[1] : "", log.string(),
-                                         FileTail(log, 1500)));
-  }
-  return {timer.ElapsedSeconds(), usage.ru_maxrss / 1024.0};
-}
-
-bool CanRun(const std::string& program) {
-  return std::system(fmt::format("command -v {} >/dev/null 2>&1", program).c_str()) == 0;
-}
-
-double ResidentMegabytes() {
-  std::ifstream statm("/proc/self/statm");
-  long pages = 0, resident = 0;
-  statm >> pages >> resident;
-  return resident * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1 << 20);
-}
-
-uint64_t DirectoryBytes(const fs::path& dir, const std::vector<std::string>& exclude = {}) {
-  uint64_t bytes = 0;
-  for (const auto& entry : fs::recursive_directory_iterator(dir)) {
-    if (!entry.is_regular_file()) continue;
-    const std::string name = entry.path().filename().string();
-    if (std::find(exclude.begin(), exclude.end(), name) != exclude.end()) continue;
-    bytes += entry.file_size();
-  }
-  return bytes;
-}
-
-std::string Megabytes(double bytes) { return fmt::format("{:.1f} MB", bytes / 1e6); }
 
 // ---------------------------------------------------------------------------------------------
 // The machine's limit.
@@ -661,257 +564,6 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
   return row;
 }
 
-// ---------------------------------------------------------------------------------------------
-// The report.
-
-std::string ScaleSvg(const json& scale) {
-  struct Panel {
-    std::string title;
-    std::string key;
-  };
-  const std::vector<Panel> panels = {{"build-map time (s)", "build_map_s"},
-                                     {"build-map peak memory (MB)", "build_map_peak_mb"},
-                                     {"loaded map (MB)", "loaded_map_mb"},
-                                     {"query p50 (ms)", "query_p50_ms"}};
-  const double width = 260, height = 200, margin = 45;
-  std::ostringstream svg;
-  svg << fmt::format(
-      "<svg xmlns='http://www.w3.org/2000/svg' width='{}' height='{}' font-family='sans-serif' "
-      "font-size='11'>\n",
-      width * panels.size(), height + 30);
-  double min_points = 1e300, max_points = 0;
-  for (const json& row : scale) {
-    min_points = std::min(min_points, row["points"].get<double>());
-    max_points = std::max(max_points, row["points"].get<double>());
-  }
-  const double log_min = std::log10(min_points) - 0.2, log_max = std::log10(max_points) + 0.2;
-  for (size_t p = 0; p < panels.size(); ++p) {
-    const double x0 = p * width + margin, x1 = (p + 1) * width - 10;
-    const double y0 = height - 20, y1 = 25;
-    double max_value = 0;
-    for (const json& row : scale) max_value = std::max(max_value, row.value(panels[p].key, 0.0));
-    max_value = max_value > 0 ? max_value * 1.15 : 1;
-    svg << fmt::format("<text x='{}' y='15'>{}</text>\n", x0, panels[p].title);
-    svg << fmt::format("<line x1='{0}' y1='{1}' x2='{2}' y2='{1}' stroke='black'/>\n", x0, y0, x1);
-    svg << fmt::format("<line x1='{0}' y1='{1}' x2='{0}' y2='{2}' stroke='black'/>\n", x0, y0, y1);
-    svg << fmt::format("<text x='{}' y='{}' text-anchor='end'>{:.3g}</text>\n", x0 - 3, y1 + 4,
-                       max_value);
-    svg << fmt::format("<text x='{}' y='{}' text-anchor='end'>0</text>\n", x0 - 3, y0);
-    svg << fmt::format("<text x='{}' y='{}' text-anchor='middle'>3D points (log)</text>\n",
-                       (x0 + x1) / 2, height + 12);
-    std::string path;
-    for (const json& row : scale) {
-      if (!row.contains(panels[p].key)) continue;
-      const double x = x0 + (std::log10(row["points"].get<double>()) - log_min) /
-                                (log_max - log_min) * (x1 - x0);
-      const double y = y0 - row[panels[p].key].get<double>() / max_value * (y0 - y1);
-      path += fmt::format("{}{:.1f},{:.1f}", path.empty() ? "M" : " L", x, y);
-      svg << fmt::format("<circle cx='{:.1f}' cy='{:.1f}' r='3' fill='#1f77b4'/>\n", x, y);
-      svg << fmt::format("<text x='{:.1f}' y='{:.1f}' text-anchor='middle'>{}</text>\n", x, y - 6,
-                         row["preset"].get<std::string>());
-    }
-    svg << fmt::format("<path d='{}' fill='none' stroke='#1f77b4'/>\n", path);
-  }
-  svg << "</svg>\n";
-  return svg.str();
-}
-
-std::string Percent(const json& fractions, size_t i) {
-  return fractions.is_array() && i < fractions.size()
-             ? fmt::format("{:.0f}%", 100 * fractions[i].get<double>())
-             : "-";
-}
-
-std::string PeerRow(const std::string& name, const json& result, double map_bytes) {
-  if (result.contains("skipped")) {
-    std::string reason = result["skipped"].get<std::string>();
-    reason = reason.substr(0, std::min(reason.find('\n'), size_t{120}));
-    return fmt::format("| {} | - | - | - | - | - | {} |\n", name, reason);
-  }
-  const double ms = result.contains("ms_per_query")
-                        ? result["ms_per_query"].get<double>()
-                        : result["ms_per_query_one_thread"].get<double>();
-  return fmt::format("| {} | {} | {} | {} | {:.3g} m | {:.0f} ms | {} |\n", name,
-                     Percent(result["localized_fraction"], 0),
-                     Percent(result["localized_fraction"], 1),
-                     Percent(result["localized_fraction"], 2),
-                     result["median_position"].get<double>(), ms, Megabytes(map_bytes));
-}
-
-std::string PeersTable(const json& peers) {
-  std::string table = fmt::format(
-      "**{}** ({} queries; network trained {:.0f} s)\n\n| method | (0.25 m, 2°) | (0.5 m, 5°) | (5 "
-      "m, 10°) | median "
-      "position | time per query | map on disk |\n| --- | --- | --- | --- | --- | --- | --- |\n",
-      peers["set"].get<std::string>(), peers.value("queries", 0), peers.value("train_s", 0.0));
-  if (peers.contains("skipped")) return table + "skipped: " + peers["skipped"].get<std::string>();
-  const json& sizes = peers["sizes"];
-  table += PeerRow("HSC (network + points + index)", peers["hsc"], sizes["hsc_bytes"]);
-  table += PeerRow("NN baseline (descriptors + points + index)", peers["nn"], sizes["nn_bytes"]);
-  table += PeerRow("COLMAP image_registrator (database.db + model)", peers["colmap"],
-                   peers["colmap"].value("map_bytes", 0.0));
-  return table + "\n";
-}
-
-std::string WriteReport(const json& results, const fs::path& report_path) {
-  const json& peaks = results["machine"];
-  const json& city = results["city"];
-  double city_train_s = 0;
-  for (const json& row : results["scale"]) {
-    if (row["preset"] == "city") city_train_s = row["train_s"];
-  }
-  std::ostringstream md;
-  md << "# Performance\n\n";
-  md << fmt::format(
-      "Generated by `hscloc-bench{}` on {} ({} cores, {}), {}. Every number below comes from that "
-      "one run unless marked otherwise; the raw numbers are in `{}`.\n\n",
-      results["quick"].get<bool>() ? " --quick" : "", peaks["cpu"].get<std::string>(),
-      peaks["threads"].get<int>(), peaks["kernel_instruction_sets"].get<std::string>(),
-      results["date"].get<std::string>(), results["json_name"].get<std::string>());
-
-  md << "## Targets (city preset, N = 2000 keypoints, K = 10 images, exhaustive)\n\n"
-        "| target | measured | met |\n| --- | --- | --- |\n";
-  if (city.contains("network")) {
-    const json& network = city["network"];
-    const json* grid_row = nullptr;
-    for (const json& row : city["latency"]) {
-      if (row["keypoints"] == 2000 && row["top_k"] == 10 && row["mode"] == "exhaustive") {
-        grid_row = &row;
-      }
-    }
-    const double times_floor = network["times_floor"];
-    md << fmt::format(
-        "| network within 1.5x of its FLOP floor | {:.2f}x ({:.1f} ms for {:.1f} "
-        "GFLOP; floor {:.1f} ms at {:.0f} GFLOPS) | {} |\n",
-        times_floor, network["predict_ms"].get<double>(), network["gflop"].get<double>(),
-        network["floor_ms"].get<double>(), peaks["peak_gflops"].get<double>(),
-        times_floor <= 1.5 ? "yes" : "no");
-    if (grid_row != nullptr) {
-      const double p50 = (*grid_row)["total"]["p50"];
-      md << fmt::format("| end-to-end p50 under 300 ms | {:.0f} ms (p95 {:.0f} ms) | {} |\n", p50,
-                        (*grid_row)["total"]["p95"].get<double>(), p50 < 300 ? "yes" : "no");
-    }
-    const json& server = city["server"];
-    const double of_ideal = server["of_ideal"];
-    md << fmt::format(
-        "| server throughput at least 80% of workers / single-query latency | {:.0f}% ({:.2f} "
-        "requests/s against {:.2f}) | {} |\n\n",
-        100 * of_ideal, server["requests_per_s"].get<double>(),
-        server["ideal_requests_per_s"].get<double>(), of_ideal >= 0.8 ? "yes" : "no");
-  }
-
-  md << "## The machine's limit\n\n| fp32 GEMM, 2048^3, all cores | GFLOPS |\n| --- | --- |\n";
-  md << fmt::format("| libtorch (OpenBLAS) | {:.1f} |\n| hscloc kernels (Eigen, {}) | {:.1f} |\n\n",
-                    peaks["libtorch_gflops"].get<double>(),
-                    peaks["kernel_instruction_sets"].get<std::string>(),
-                    peaks["eigen_kernels_gflops"].get<double>());
-  if (city.contains("network")) {
-    const json& network = city["network"];
-    md << fmt::format(
-        "Network at N = 2000, K = 10 on the city map: {:.2f} GFLOP per query counted from its "
-        "shapes (generator once per (image, keypoint) row). hscloc's fused CPU kernels take "
-        "{:.1f} ms ({:.0f} GFLOPS counted that way; the generator's deduplication of equal "
-        "(image, label prefix) rows skips part of the counted work), {:.2f}x the floor of {:.1f} "
-        "ms at the best measured peak. libtorch's operators on the same weights, the path before "
-        "the kernels, take {:.0f} ms: the kernels are {:.1f}x faster. Per level, coarsest first: "
-        "{:.1f} ms.\n\n",
-        network["gflop"].get<double>(), network["predict_ms"].get<double>(),
-        network["achieved_gflops"].get<double>(), network["times_floor"].get<double>(),
-        network["floor_ms"].get<double>(), network["predict_libtorch_operators_ms"].get<double>(),
-        network["predict_libtorch_operators_ms"].get<double>() /
-            network["predict_ms"].get<double>(),
-        fmt::join(network.value("level_ms", std::vector<double>{}), " / "));
-
-    md << "## End-to-end latency per stage (city, all cores for one query, ms, p50 / p95)\n\n"
-          "| keypoints | K | mode | retrieval | network | visibility | pose | total | localized "
-          "|\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
-    for (const json& row : city["latency"]) {
-      const auto stage = [&](const char* key) {
-        return fmt::format("{:.1f} / {:.1f}", row[key]["p50"].get<double>(),
-                           row[key]["p95"].get<double>());
-      };
-      md << fmt::format("| {} | {} | {} | {} | {} | {} | {} | {} | {}/{} |\n",
-                        row["keypoints"].get<int>(), row["top_k"].get<int>(),
-                        row["mode"].get<std::string>(), stage("retrieval"), stage("network"),
-                        stage("visibility"), stage("pose"), stage("total"),
-                        row["localized"].get<int>(), row["queries"].get<int>());
-    }
-    const json& server = city["server"];
-    md << fmt::format(
-        "\nQueries are the city's day queries, cut to N keypoints or filled with clutter keypoints "
-        "(uniform in the image, random descriptors). \"localized\": queries given a pose by this "
-        "run's city network, trained {:.0f} s (its accuracy is in the peers below); the network's "
-        "latency does not depend on training, RANSAC's does through its early stop.\n\n"
-        "## Server over loopback\n\n{} workers "
-        "(one thread each), N = 2000, K = 10. One client alone sees {:.0f} ms per request, so the "
-        "pool's ideal is {:.2f} requests/s.\n\n| clients | requests/s | of ideal | p50 ms | p95 "
-        "ms | p99 ms |\n| --- | --- | --- | --- | --- | --- |\n",
-        city_train_s, server["workers"].get<int>(), server["single_query_ms"].get<double>(),
-        server["ideal_requests_per_s"].get<double>());
-    for (const json& row : server["load"]) {
-      md << fmt::format("| {} | {:.2f} | {:.0f}% | {:.0f} | {:.0f} | {:.0f} |\n",
-                        row["clients"].get<int>(), row["requests_per_s"].get<double>(),
-                        100 * row["of_ideal"].get<double>(), row["p50_ms"].get<double>(),
-                        row["p95_ms"].get<double>(), row["p99_ms"].get<double>());
-    }
-    md << "\n";
-  }
-
-  if (city.contains("network")) {
-    const json& network = city["network"];
-    md << fmt::format(
-        "## Speed-ups, each measured\n\n| change | before | after | measured by |\n| --- | --- "
-        "| --- | --- |\n| the network's CPU inference on fused kernels (docs/decisions.md) | "
-        "{:.0f} ms (libtorch operators) | {:.1f} ms | this run: the same weights, N = 2000, K = "
-        "10 |\n| OpenBLAS instead of ATLAS behind every `sgemm_` (docs/decisions.md) | 34 "
-        "GFLOPS for libtorch's 2048^3 product; training 5.2k observations/s | {:.0f} GFLOPS; "
-        "13.9k observations/s | `hscloc_network_benchmark` before and after the link change |\n\n"
-        "Accuracy is kept: a test holds the fused kernels to libtorch's labels and confidences, "
-        "and the peers below are measured on the fused path.\n\n",
-        network["predict_libtorch_operators_ms"].get<double>(), network["predict_ms"].get<double>(),
-        peaks["libtorch_gflops"].get<double>());
-  }
-
-  md << "## Peers on the same data\n\nHSC and the nearest-neighbour baseline share retrieval "
-        "(top 10), the visibility filter and the pose stage; times are per query on one thread. "
-        "COLMAP matches each query against every map image with its SIFT matcher, then registers "
-        "it (`matches_importer` + `image_registrator`, wall time per query; the map images' "
-        "matches among themselves, which its registration needs, are made beforehand and not "
-        "timed). Map on disk: what "
-        "each method must keep to localize.\n\n";
-  for (const json& peers : results["real_sets"]) md << PeersTable(peers);
-  for (const json& row : results["scale"]) {
-    if (!row.contains("peers")) continue;
-    for (const auto& [condition, peers] : row["peers"].items()) md << PeersTable(peers);
-  }
-
-  md << "## Cost against map size\n\n![scale](performance_scale.svg)\n\n"
-        "| preset | images | 3D points | observations | build-map | build-map peak memory | "
-        "training | loaded map, with descriptors | bundle (HSC) | query p50 |\n"
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
-  for (const json& row : results["scale"]) {
-    md << fmt::format(
-        "| {}{} | {} | {} | {} | {:.0f} s | {:.0f} MB | {:.0f} s | {:.0f} MB | {} | {:.0f} ms |\n",
-        row["preset"].get<std::string>(),
-        row.contains("measured") ? " (measured " + row["measured"].get<std::string>() + ")" : "",
-        row["images"].get<int64_t>(), row["points"].get<int64_t>(),
-        row["observations"].get<int64_t>(), row["build_map_s"].get<double>(),
-        row["build_map_peak_mb"].get<double>(), row["train_s"].get<double>(),
-        row["loaded_map_mb"].get<double>(), Megabytes(row["sizes"]["hsc_bytes"].get<double>()),
-        row["query_p50_ms"].get<double>());
-  }
-  md << "\nTraining ran for a fixed time budget per preset (more in a full run); query p50 uses "
-        "the queries' own keypoints, K = 10, exhaustive, all cores.\n\n"
-        "## Micro-benchmarks\n\nGoogle Benchmark executables in `build/bench/`, run by hand: "
-        "`hscloc_network_benchmark` (Predict at the Aachen shape with per-level times, training "
-        "throughput, libtorch's GEMM peak), `hscloc_retrieval_benchmark` (VLAD encoding, flat and "
-        "IVF-PQ search), `hscloc_absolute_pose_benchmark` (RANSAC at 50, 20 and 10% inliers, with "
-        "and without early stop, beside OpenCV's USAC) and `hscloc_map_load_benchmark` (bundle "
-        "verification and loading).\n";
-  std::ofstream(report_path.parent_path() / "performance_scale.svg") << ScaleSvg(results["scale"]);
-  return md.str();
-}
-
 std::string Today() {
   const std::time_t now = std::time(nullptr);
   char text[32];
@@ -1009,10 +661,10 @@ int Run(const BenchOptions& options) {
 }
 
 }  // namespace
-}  // namespace hscloc
+}  // namespace hscloc::bench
 
 int main(int argc, char** argv) {
-  hscloc::BenchOptions options;
+  hscloc::bench::BenchOptions options;
   std::string work, data, report, json_path;
   CLI::App app{"Benchmarks hscloc against the machine's limit and its peers; writes a report"};
   app.add_flag("--quick", options.quick,
@@ -1040,7 +692,7 @@ int main(int argc, char** argv) {
   if (!report.empty()) options.report = report;
   if (!json_path.empty()) options.json_path = json_path;
   try {
-    return hscloc::Run(options);
+    return hscloc::bench::Run(options);
   } catch (const std::exception& error) {
     std::cerr << "error: " << error.what() << '\n';
     return 1;

@@ -6,14 +6,13 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <functional>
 #include <istream>
 #include <ostream>
 #include <sstream>
 #include <string>
 #include <utility>
 
-#include "model/dense_kernels.h"
+#include "model/network_decoding.h"
 #include "model/network_module.h"
 #include "util/check.h"
 #include "util/parallel.h"
@@ -30,78 +29,6 @@ constexpr int kMaxConditionedLayers = 3;
 std::atomic<int> compute_threads{0};
 
 torch::Tensor Elu(const torch::Tensor& x) { return torch::elu(x); }
-
-// Per distinct conditioning image, a bit per label tree node: set when the node's subtree holds a
-// point the image observes. One pass over the image's visible points marks their ancestors.
-class NodeVisibilityMasks {
- public:
-  NodeVisibilityMasks(const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                      const Visibility& visibility)
-      : words_((tree.NumNodes() + 63) / 64) {
-    slot_of_k_.assign(image_indices.size(), -1);
-    for (size_t k = 0; k < image_indices.size(); ++k) {
-      const uint32_t image = image_indices[k];
-      if (image >= visibility.NumImages()) continue;  // the "no image" index is never masked
-      const auto known = std::find(images_.begin(), images_.end(), image);
-      if (known != images_.end()) {
-        slot_of_k_[k] = static_cast<int>(known - images_.begin());
-        continue;
-      }
-      slot_of_k_[k] = static_cast<int>(images_.size());
-      images_.push_back(image);
-      bits_.resize(bits_.size() + words_, 0);
-      uint64_t* bits = bits_.data() + bits_.size() - words_;
-      for (const uint32_t* point = visibility.PointsBegin(image);
-           point != visibility.PointsEnd(image); ++point) {
-        const LabelTree::Label* labels = tree.LabelsOfPoint(*point);
-        uint32_t node = 0;
-        for (int level = 0; level < tree.levels(); ++level) {
-          node = tree.FirstChild(node) + labels[level];
-          bits[node / 64] |= uint64_t{1} << (node % 64);
-        }
-      }
-    }
-  }
-
-  // -1 when the k-th conditioning image has no mask.
-  int SlotOfK(size_t k) const { return slot_of_k_[k]; }
-  bool Contains(int slot, uint32_t node) const {
-    return (bits_[slot * words_ + node / 64] >> (node % 64)) & 1;
-  }
-
- private:
-  size_t words_;
-  std::vector<uint32_t> images_;
-  std::vector<int> slot_of_k_;
-  std::vector<uint64_t> bits_;
-};
-
-// The label a row takes at one level: the most probable child, or with a mask slot (>= 0) and a
-// known parent node, the most probable among the children the mask keeps (the plain argmax when it
-// keeps none).
-int64_t ChooseLabel(const float* probabilities, int64_t branching, const NodeVisibilityMasks* masks,
-                    int slot, int64_t parent, const LabelTree& tree) {
-  int64_t best = -1;
-  if (masks != nullptr && slot >= 0 && parent >= 0) {
-    const uint32_t first = tree.FirstChild(static_cast<uint32_t>(parent));
-    const int64_t children = tree.NumChildren(static_cast<uint32_t>(parent));
-    for (int64_t c = 0; c < children; ++c) {
-      if (masks->Contains(slot, first + static_cast<uint32_t>(c)) &&
-          (best < 0 || probabilities[c] > probabilities[best])) {
-        best = c;
-      }
-    }
-  }
-  if (best < 0) best = std::max_element(probabilities, probabilities + branching) - probabilities;
-  return best;
-}
-
-// The tree node reached from `parent` by `label`; -1 when the path leaves the tree.
-int64_t ChildNode(int64_t parent, int64_t label, const LabelTree& tree) {
-  return parent >= 0 && label < tree.NumChildren(static_cast<uint32_t>(parent))
-             ? tree.FirstChild(static_cast<uint32_t>(parent)) + label
-             : -1;
-}
 
 void WriteInt64Vector(torch::serialize::OutputArchive& archive, const std::string& key,
                       const std::vector<int64_t>& values) {
@@ -123,6 +50,8 @@ std::vector<int64_t> ReadInt64Vector(torch::serialize::InputArchive& archive,
 }
 
 }  // namespace
+
+int ComputeThreads() { return compute_threads.load(); }
 
 // ---------------------------------------------------------------------------------------------
 // Devices and small helpers.
@@ -464,190 +393,6 @@ double Network::PredictFlops(int64_t num_descriptors, int64_t num_images) const 
                            rows * (e * e + 2 * layers * e * c) + rows * c * shape().branching;
   return 2 * per_level * shape().levels;
 }
-
-// ---------------------------------------------------------------------------------------------
-// CPU inference: the forward pass of Predict on the dense kernels, row block by row block. A block
-// of FiLM features, its logits and its softmax stay in cache from modulation to label choice,
-// where libtorch's operator-at-a-time path wrote and reread each [rows, C] intermediate.
-
-namespace {
-
-constexpr int64_t kRowBlock = 128;
-
-// body(begin, end) over blocks of kRowBlock rows, on the compute threads.
-void ForEachRowBlock(int64_t rows, const std::function<void(int64_t begin, int64_t end)>& body) {
-  const int64_t blocks = (rows + kRowBlock - 1) / kRowBlock;
-  ParallelFor(static_cast<size_t>(blocks), compute_threads.load(), [&](size_t first, size_t last) {
-    for (size_t block = first; block < last; ++block) {
-      const int64_t begin = static_cast<int64_t>(block) * kRowBlock;
-      body(begin, std::min(rows, begin + kRowBlock));
-    }
-  });
-}
-
-// Per-thread buffers of one row block, kept between blocks and calls: fresh allocations of this
-// size would each be zeroed and page-faulted in.
-struct BlockScratch {
-  std::vector<float> embedding, generator, features, linear, logits;
-  std::vector<std::vector<float>> gammas, betas;
-  std::vector<int32_t> run_of_row;
-  std::vector<int64_t> descriptor_of_row;
-
-  void Reserve(int64_t rows, int64_t channels, int64_t embedding_dim, int64_t branching,
-               int layers) {
-    const auto grow = [](auto& buffer, int64_t size) {
-      if (static_cast<int64_t>(buffer.size()) < size) buffer.resize(size);
-    };
-    grow(embedding, rows * embedding_dim);
-    grow(generator, rows * embedding_dim);
-    grow(features, rows * channels);
-    grow(linear, rows * channels);
-    grow(logits, rows * branching);
-    grow(run_of_row, rows);
-    grow(descriptor_of_row, rows);
-    if (static_cast<int>(gammas.size()) < layers) {
-      gammas.resize(layers);
-      betas.resize(layers);
-    }
-    for (int layer = 0; layer < layers; ++layer) {
-      grow(gammas[layer], rows * channels);
-      grow(betas[layer], rows * channels);
-    }
-  }
-};
-
-PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& descriptors,
-                              const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                              const Visibility* visibility_mask) {
-  namespace dk = dense_kernels;
-  const NetworkShape& s = network.shape();
-  const int64_t n = descriptors.rows();
-  const int64_t k = static_cast<int64_t>(image_indices.size());
-  const int64_t rows = n * k;
-  const int64_t d = s.descriptor_dim;
-  const int64_t c = network.options().channels;
-  const int64_t e = network.options().embedding_dim;
-  const int64_t branching = s.branching;
-  PointPredictions result;
-  result.num_images = k;
-  result.num_descriptors = n;
-  result.point_indices.resize(k, n);
-  result.confidences.setOnes(k, n);
-  result.labels.resize(rows, s.levels);
-  if (rows == 0) return result;
-
-  DescriptorMatrix normalized = descriptors;
-  for (int64_t i = 0; i < n; ++i) {
-    normalized.row(i) /= std::max(normalized.row(i).norm(), 1e-12f);
-  }
-  std::unique_ptr<NodeVisibilityMasks> masks;
-  std::vector<int64_t> parent_node;
-  if (visibility_mask != nullptr) {
-    masks = std::make_unique<NodeVisibilityMasks>(image_indices, tree, *visibility_mask);
-    parent_node.assign(rows, 0);
-  }
-
-  uint8_t* labels = result.labels.data();
-  float* confidences = result.confidences.data();
-  std::vector<float> scaled(n * d);
-  std::vector<float> shared(n * c);
-  std::vector<std::pair<int64_t, int64_t>> keyed_rows(rows);  // (image and label prefix, row)
-  for (const Level& level : NetworkInternals::Module(network)->levels) {
-    const Timer level_timer;
-    const int depth = level->level();
-    const LevelWeights w = level->CpuWeights();
-    const int layers = level->NumConditionedLayers();
-
-    // Descriptor-only part, once per keypoint: trunk and the first conditioned layer's W h + b.
-    Eigen::Map<Eigen::ArrayXf>(scaled.data(), n * d) =
-        Eigen::Map<const Eigen::ArrayXf>(normalized.data(), n * d) * w.input_scale;
-    ForEachRowBlock(n, [&](int64_t begin, int64_t end) {
-      const int64_t m = end - begin;
-      thread_local BlockScratch scratch;
-      scratch.Reserve(m, c, e, branching, layers);
-      dk::Linear(scaled.data() + begin * d, m, d, w.trunk1_weight, w.trunk1_bias, c, true,
-                 scratch.features.data());
-      dk::Linear(scratch.features.data(), m, c, w.trunk2_weight, w.trunk2_bias, c, true,
-                 scratch.linear.data());
-      dk::Linear(scratch.linear.data(), m, c, w.conditioned_weights[0], w.conditioned_biases[0], c,
-                 false, shared.data() + begin * c);
-    });
-
-    // Rows with the same image and label prefix share their modulation. Rows are visited in the
-    // order of that key, so a block holds runs of equal keys and evaluates the generator once per
-    // run, and a block's modulation never leaves the cache.
-    for (int64_t r = 0; r < rows; ++r) {
-      int64_t key = image_indices[r / n];
-      for (int column = 0; column < depth; ++column) {
-        key = key * branching + labels[r * s.levels + column];
-      }
-      keyed_rows[r] = {key, r};
-    }
-    std::sort(keyed_rows.begin(), keyed_rows.end());
-
-    ForEachRowBlock(rows, [&](int64_t begin, int64_t end) {
-      const int64_t m = end - begin;
-      thread_local BlockScratch scratch;
-      scratch.Reserve(m, c, e, branching, layers);
-      int64_t runs = 0;
-      for (int64_t i = begin; i < end; ++i) {
-        if (i == begin || keyed_rows[i].first != keyed_rows[i - 1].first) {
-          // The generator input of the run: image embedding plus the coarser labels' embeddings.
-          const int64_t r = keyed_rows[i].second;
-          auto sum = Eigen::Map<Eigen::VectorXf>(scratch.embedding.data() + runs * e, e);
-          sum = Eigen::Map<const Eigen::VectorXf>(w.image_embedding + image_indices[r / n] * e, e);
-          for (int column = 0; column < depth; ++column) {
-            sum += Eigen::Map<const Eigen::VectorXf>(
-                w.label_embeddings[column] + labels[r * s.levels + column] * e, e);
-          }
-          ++runs;
-        }
-        scratch.run_of_row[i - begin] = static_cast<int32_t>(runs - 1);
-        scratch.descriptor_of_row[i - begin] = keyed_rows[i].second % n;
-      }
-      dk::EluInPlace(scratch.embedding.data(), runs * e);
-      dk::Linear(scratch.embedding.data(), runs, e, w.generator_weight, w.generator_bias, e, true,
-                 scratch.generator.data());
-      for (int layer = 0; layer < layers; ++layer) {
-        dk::Linear(scratch.generator.data(), runs, e, w.gamma_weights[layer], w.gamma_biases[layer],
-                   c, false, scratch.gammas[layer].data());
-        dk::Linear(scratch.generator.data(), runs, e, w.beta_weights[layer], w.beta_biases[layer],
-                   c, false, scratch.betas[layer].data());
-      }
-
-      dk::ModulateElu(shared.data(), scratch.descriptor_of_row.data(), scratch.gammas[0].data(),
-                      scratch.betas[0].data(), scratch.run_of_row.data(), m, c,
-                      scratch.features.data());
-      for (int layer = 1; layer < layers; ++layer) {
-        dk::Linear(scratch.features.data(), m, c, w.conditioned_weights[layer],
-                   w.conditioned_biases[layer], c, false, scratch.linear.data());
-        dk::ModulateElu(scratch.linear.data(), nullptr, scratch.gammas[layer].data(),
-                        scratch.betas[layer].data(), scratch.run_of_row.data(), m, c,
-                        scratch.features.data());
-      }
-      dk::Linear(scratch.features.data(), m, c, w.output_weight, w.output_bias, branching, false,
-                 scratch.logits.data());
-      dk::SoftmaxRowsInPlace(scratch.logits.data(), m, branching);
-      for (int64_t i = begin; i < end; ++i) {
-        const int64_t r = keyed_rows[i].second;
-        const float* probabilities = scratch.logits.data() + (i - begin) * branching;
-        const int slot = masks ? masks->SlotOfK(static_cast<size_t>(r / n)) : -1;
-        const int64_t parent = masks ? parent_node[r] : -1;
-        const int64_t best = ChooseLabel(probabilities, branching, masks.get(), slot, parent, tree);
-        labels[r * s.levels + depth] = static_cast<uint8_t>(best);
-        confidences[r] *= probabilities[best];
-        if (masks) parent_node[r] = ChildNode(parent, best, tree);
-      }
-    });
-    result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
-  }
-  for (int64_t r = 0; r < rows; ++r) {
-    result.point_indices.data()[r] = tree.PointOfLabels(labels + r * s.levels);
-  }
-  return result;
-}
-
-}  // namespace
 
 PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
                                   const std::vector<uint32_t>& image_indices, const LabelTree& tree,

@@ -1,0 +1,111 @@
+#include "bench/bench_support.h"
+
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <stdexcept>
+
+#include "util/timer.h"
+
+namespace hscloc::bench {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+Timer& RunClock() {
+  static Timer timer;
+  return timer;
+}
+
+std::string FileTail(const fs::path& path, size_t bytes) {
+  std::ifstream stream(path, std::ios::binary);
+  const std::string text((std::istreambuf_iterator<char>(stream)), {});
+  return text.size() > bytes ? text.substr(text.size() - bytes) : text;
+}
+
+}  // namespace
+
+void Step(const std::string& message) {
+  std::cerr << fmt::format("[{:6.1f} s] {}\n", RunClock().ElapsedSeconds(), message) << std::flush;
+}
+
+double Percentile(std::vector<double> values, double fraction) {
+  if (values.empty()) return std::nan("");
+  std::sort(values.begin(), values.end());
+  const double position = fraction * (values.size() - 1);
+  const size_t below = static_cast<size_t>(position);
+  const size_t above = std::min(values.size() - 1, below + 1);
+  return values[below] + (position - below) * (values[above] - values[below]);
+}
+
+double Mean(const std::vector<double>& values) {
+  double sum = 0;
+  for (const double value : values) sum += value;
+  return values.empty() ? std::nan("") : sum / values.size();
+}
+
+// Runs `args` with stdout and stderr into `log`; throws with the log's tail when it fails.
+ChildRun RunChild(const std::vector<std::string>& args, const fs::path& log) {
+  fs::create_directories(log.parent_path());
+  Timer timer;
+  const pid_t pid = fork();
+  if (pid < 0) throw std::runtime_error("fork failed");
+  if (pid == 0) {
+    const int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd >= 0) {
+      dup2(fd, STDOUT_FILENO);
+      dup2(fd, STDERR_FILENO);
+    }
+    std::vector<char*> argv;
+    for (const std::string& arg : args) argv.push_back(const_cast<char*>(arg.c_str()));
+    argv.push_back(nullptr);
+    execvp(argv[0], argv.data());
+    std::fprintf(stderr, "cannot run %s\n", argv[0]);
+    _exit(127);
+  }
+  int status = 0;
+  rusage usage{};
+  wait4(pid, &status, 0, &usage);
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+    throw std::runtime_error(fmt::format("`{} {}` failed (log {}):\n{}", args[0],
+                                         args.size() > 1 ? args[1] : "", log.string(),
+                                         FileTail(log, 1500)));
+  }
+  return {timer.ElapsedSeconds(), usage.ru_maxrss / 1024.0};
+}
+
+bool CanRun(const std::string& program) {
+  return std::system(fmt::format("command -v {} >/dev/null 2>&1", program).c_str()) == 0;
+}
+
+double ResidentMegabytes() {
+  std::ifstream statm("/proc/self/statm");
+  long pages = 0, resident = 0;
+  statm >> pages >> resident;
+  return resident * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1 << 20);
+}
+
+uint64_t DirectoryBytes(const fs::path& dir, const std::vector<std::string>& exclude) {
+  uint64_t bytes = 0;
+  for (const auto& entry : fs::recursive_directory_iterator(dir)) {
+    if (!entry.is_regular_file()) continue;
+    const std::string name = entry.path().filename().string();
+    if (std::find(exclude.begin(), exclude.end(), name) != exclude.end()) continue;
+    bytes += entry.file_size();
+  }
+  return bytes;
+}
+
+std::string Megabytes(double bytes) { return fmt::format("{:.1f} MB", bytes / 1e6); }
+
+}  // namespace hscloc::bench

@@ -1,0 +1,97 @@
+// Label decoding shared by the network's two inference paths (libtorch operators, and the CPU
+// kernels of network_cpu_inference.cc): visibility masks over the label tree and the choice of a
+// row's label at one level. Internal to the network's files.
+#pragma once
+
+#include <algorithm>
+#include <cstdint>
+#include <vector>
+
+#include "model/label_tree.h"
+#include "model/network.h"
+#include "model/visibility.h"
+
+namespace hscloc {
+
+// Per distinct conditioning image, a bit per label tree node: set when the node's subtree holds a
+// point the image observes. One pass over the image's visible points marks their ancestors.
+class NodeVisibilityMasks {
+ public:
+  NodeVisibilityMasks(const std::vector<uint32_t>& image_indices, const LabelTree& tree,
+                      const Visibility& visibility)
+      : words_((tree.NumNodes() + 63) / 64) {
+    slot_of_k_.assign(image_indices.size(), -1);
+    for (size_t k = 0; k < image_indices.size(); ++k) {
+      const uint32_t image = image_indices[k];
+      if (image >= visibility.NumImages()) continue;  // the "no image" index is never masked
+      const auto known = std::find(images_.begin(), images_.end(), image);
+      if (known != images_.end()) {
+        slot_of_k_[k] = static_cast<int>(known - images_.begin());
+        continue;
+      }
+      slot_of_k_[k] = static_cast<int>(images_.size());
+      images_.push_back(image);
+      bits_.resize(bits_.size() + words_, 0);
+      uint64_t* bits = bits_.data() + bits_.size() - words_;
+      for (const uint32_t* point = visibility.PointsBegin(image);
+           point != visibility.PointsEnd(image); ++point) {
+        const LabelTree::Label* labels = tree.LabelsOfPoint(*point);
+        uint32_t node = 0;
+        for (int level = 0; level < tree.levels(); ++level) {
+          node = tree.FirstChild(node) + labels[level];
+          bits[node / 64] |= uint64_t{1} << (node % 64);
+        }
+      }
+    }
+  }
+
+  // -1 when the k-th conditioning image has no mask.
+  int SlotOfK(size_t k) const { return slot_of_k_[k]; }
+  bool Contains(int slot, uint32_t node) const {
+    return (bits_[slot * words_ + node / 64] >> (node % 64)) & 1;
+  }
+
+ private:
+  size_t words_;
+  std::vector<uint32_t> images_;
+  std::vector<int> slot_of_k_;
+  std::vector<uint64_t> bits_;
+};
+
+// The label a row takes at one level: the most probable child, or with a mask slot (>= 0) and a
+// known parent node, the most probable among the children the mask keeps (the plain argmax when it
+// keeps none).
+inline int64_t ChooseLabel(const float* probabilities, int64_t branching,
+                           const NodeVisibilityMasks* masks, int slot, int64_t parent,
+                           const LabelTree& tree) {
+  int64_t best = -1;
+  if (masks != nullptr && slot >= 0 && parent >= 0) {
+    const uint32_t first = tree.FirstChild(static_cast<uint32_t>(parent));
+    const int64_t children = tree.NumChildren(static_cast<uint32_t>(parent));
+    for (int64_t c = 0; c < children; ++c) {
+      if (masks->Contains(slot, first + static_cast<uint32_t>(c)) &&
+          (best < 0 || probabilities[c] > probabilities[best])) {
+        best = c;
+      }
+    }
+  }
+  if (best < 0) best = std::max_element(probabilities, probabilities + branching) - probabilities;
+  return best;
+}
+
+// The tree node reached from `parent` by `label`; -1 when the path leaves the tree.
+inline int64_t ChildNode(int64_t parent, int64_t label, const LabelTree& tree) {
+  return parent >= 0 && label < tree.NumChildren(static_cast<uint32_t>(parent))
+             ? tree.FirstChild(static_cast<uint32_t>(parent)) + label
+             : -1;
+}
+
+// Threads of Predict's CPU kernels, as SetComputeThreads set them (0: all cores).
+int ComputeThreads();
+
+// Network::Predict on the CPU kernels (model/dense_kernels.h); inputs already checked.
+PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& descriptors,
+                              const std::vector<uint32_t>& image_indices, const LabelTree& tree,
+                              const Visibility* visibility_mask);
+
+}  // namespace hscloc
