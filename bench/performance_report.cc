@@ -237,7 +237,14 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
   for (const json& peers : results["real_sets"]) md << PeersTable(peers);
   for (const json& row : results["scale"]) {
     if (!row.contains("peers")) continue;
-    for (const auto& [condition, peers] : row["peers"].items()) md << PeersTable(peers);
+    for (const auto& [condition, peers] : row["peers"].items()) {
+      json marked = peers;
+      if (row.contains("measured")) {
+        marked["set"] = fmt::format("{} (measured {})", peers["set"].get<std::string>(),
+                                    row["measured"].get<std::string>());
+      }
+      md << PeersTable(marked);
+    }
   }
 
   md << "## Cost against map size\n\n![scale](performance_scale.svg)\n\n"
