@@ -436,12 +436,7 @@ PointPredictions NetworkInternals::PredictWithTorch(const Network& network,
   const int64_t n = descriptors.rows();
   const int64_t k = static_cast<int64_t>(image_indices.size());
   const int64_t rows = n * k;
-  PointPredictions result;
-  result.num_images = k;
-  result.num_descriptors = n;
-  result.point_indices.resize(k, n);
-  result.confidences.resize(k, n);
-  result.labels.resize(rows, s.levels);
+  PointPredictions result = AllocatePredictions(k, n, s.levels);
   if (rows == 0) return result;
 
   c10::InferenceMode inference_mode;
@@ -527,9 +522,7 @@ PointPredictions NetworkInternals::PredictWithTorch(const Network& network,
   const torch::Tensor cpu_confidence = confidence.to(torch::kCPU).contiguous();
   std::copy_n(cpu_labels.data_ptr<uint8_t>(), rows * s.levels, result.labels.data());
   std::copy_n(cpu_confidence.data_ptr<float>(), rows, result.confidences.data());
-  for (int64_t r = 0; r < rows; ++r) {
-    result.point_indices.data()[r] = tree.PointOfLabels(result.labels.data() + r * s.levels);
-  }
+  ResolvePointIndices(tree, result);
   return result;
 }
 

@@ -77,18 +77,14 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
   const int64_t c = network.options().channels;
   const int64_t e = network.options().embedding_dim;
   const int64_t branching = s.branching;
-  PointPredictions result;
-  result.num_images = k;
-  result.num_descriptors = n;
-  result.point_indices.resize(k, n);
-  result.confidences.setOnes(k, n);
-  result.labels.resize(rows, s.levels);
+  PointPredictions result = AllocatePredictions(k, n, s.levels);
   if (rows == 0) return result;
 
-  DescriptorMatrix normalized = descriptors;
-  for (int64_t i = 0; i < n; ++i) {
-    normalized.row(i) /= std::max(normalized.row(i).norm(), 1e-12f);
-  }
+  // L2-normalized rows times the trunk's input scale; every level's scale is sqrt(D), so the rows
+  // are scaled once and again only if a level were to differ.
+  DescriptorMatrix scaled = descriptors;
+  for (int64_t i = 0; i < n; ++i) scaled.row(i) /= std::max(scaled.row(i).norm(), 1e-12f);
+  float current_scale = 1;
   std::unique_ptr<NodeVisibilityMasks> masks;
   std::vector<int64_t> parent_node;
   if (visibility_mask != nullptr) {
@@ -98,7 +94,6 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
 
   uint8_t* labels = result.labels.data();
   float* confidences = result.confidences.data();
-  std::vector<float> scaled(n * d);
   std::vector<float> shared(n * c);
   std::vector<std::pair<int64_t, int64_t>> keyed_rows(rows);  // (image and label prefix, row)
   for (const Level& level : NetworkInternals::Module(network)->levels) {
@@ -108,8 +103,10 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
     const int layers = level->NumConditionedLayers();
 
     // Descriptor-only part, once per keypoint: trunk and the first conditioned layer's W h + b.
-    Eigen::Map<Eigen::ArrayXf>(scaled.data(), n * d) =
-        Eigen::Map<const Eigen::ArrayXf>(normalized.data(), n * d) * w.input_scale;
+    if (w.input_scale != current_scale) {
+      scaled *= w.input_scale / current_scale;
+      current_scale = w.input_scale;
+    }
     ForEachRowBlock(n, [&](int64_t begin, int64_t end) {
       const int64_t m = end - begin;
       thread_local BlockScratch scratch;
@@ -190,9 +187,7 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
     });
     result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
   }
-  for (int64_t r = 0; r < rows; ++r) {
-    result.point_indices.data()[r] = tree.PointOfLabels(labels + r * s.levels);
-  }
+  ResolvePointIndices(tree, result);
   return result;
 }
 

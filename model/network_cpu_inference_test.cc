@@ -4,55 +4,14 @@
 
 #include "model/network.h"
 #include "model/network_module.h"
-#include "util/random.h"
+#include "model/network_test_support.h"
 
 namespace hscloc {
 namespace {
 
-struct Fixture {
-  LabelTree tree;
-  Visibility visibility;
-  NetworkShape shape;
-};
-
-Fixture MakeFixture() {
-  Random random(11);
-  std::vector<Eigen::Vector3d> points(900);
-  for (Eigen::Vector3d& point : points) {
-    point = {random.Uniform(0, 80), random.Uniform(0, 80), random.Uniform(0, 15)};
-  }
-  LabelTreeOptions tree_options;
-  tree_options.levels = 3;
-  tree_options.branching = 10;
-  tree_options.show_progress = false;
-  tree_options.num_threads = 1;
-  Fixture fixture;
-  fixture.tree = LabelTree::Build(points, tree_options);
-  const uint32_t num_images = 12;
-  std::vector<uint32_t> image_of_entry;
-  std::vector<uint32_t> point_of_entry;
-  for (uint32_t image = 0; image < num_images; ++image) {
-    for (uint32_t point = 0; point < points.size(); ++point) {
-      if (random.Bernoulli(0.15)) {
-        image_of_entry.push_back(image);
-        point_of_entry.push_back(point);
-      }
-    }
-  }
-  fixture.visibility =
-      Visibility::FromObservations(num_images, points.size(), image_of_entry, point_of_entry);
-  fixture.shape = {40, tree_options.levels, tree_options.branching, static_cast<int>(num_images)};
-  return fixture;
-}
-
-DescriptorMatrix RandomDescriptors(int64_t rows, int64_t dim, uint64_t seed) {
-  Random random(seed);
-  DescriptorMatrix descriptors(rows, dim);
-  for (int64_t i = 0; i < descriptors.size(); ++i) {
-    descriptors.data()[i] = static_cast<float>(random.Normal() * 3);
-  }
-  return descriptors;
-}
+using testing_support::MakeRandomMap;
+using testing_support::RandomDescriptors;
+using testing_support::RandomMap;
 
 // Rows whose label paths agree; a near tie between two children may flip under a different
 // summation order, so a handful of disagreements is allowed, but the confidences of agreeing rows
@@ -72,9 +31,9 @@ void ExpectSamePredictions(const PointPredictions& kernels, const PointPredictio
 }
 
 TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
-  const Fixture fixture = MakeFixture();
+  const RandomMap fixture = MakeRandomMap(11);
   const DescriptorMatrix descriptors = RandomDescriptors(333, fixture.shape.descriptor_dim, 5);
-  const std::vector<uint32_t> images = {4, 0, 11, 4, 12, 7};
+  const std::vector<uint32_t> images = {4, 0, 8, 4, 9, 7};  // 9: no image
   for (int layers = 1; layers <= 3; ++layers) {
     NetworkOptions options;
     options.channels = 48;
@@ -92,7 +51,7 @@ TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
 }
 
 TEST(NetworkCpuInferenceTest, ThreadCountDoesNotChangeResults) {
-  const Fixture fixture = MakeFixture();
+  const RandomMap fixture = MakeRandomMap(11);
   const DescriptorMatrix descriptors = RandomDescriptors(700, fixture.shape.descriptor_dim, 6);
   const std::vector<uint32_t> images = {1, 2, 3, 5, 8};
   const Network network(fixture.shape, NetworkOptions{32, 16, 2}, 7);
@@ -106,7 +65,7 @@ TEST(NetworkCpuInferenceTest, ThreadCountDoesNotChangeResults) {
 }
 
 TEST(NetworkCpuInferenceTest, EmptyQueriesGiveEmptyPredictions) {
-  const Fixture fixture = MakeFixture();
+  const RandomMap fixture = MakeRandomMap(11);
   const Network network(fixture.shape, NetworkOptions{32, 16, 1}, 8);
   const PointPredictions no_keypoints =
       network.Predict(DescriptorMatrix(0, fixture.shape.descriptor_dim), {1, 2}, fixture.tree);

@@ -86,6 +86,27 @@ inline int64_t ChildNode(int64_t parent, int64_t label, const LabelTree& tree) {
              : -1;
 }
 
+// Predictions of K images x N descriptors with room for every level's label; confidences start
+// at 1 (each level multiplies its choice in).
+inline PointPredictions AllocatePredictions(int64_t num_images, int64_t num_descriptors,
+                                            int levels) {
+  PointPredictions result;
+  result.num_images = num_images;
+  result.num_descriptors = num_descriptors;
+  result.point_indices.resize(num_images, num_descriptors);
+  result.confidences.setOnes(num_images, num_descriptors);
+  result.labels.resize(num_images * num_descriptors, levels);
+  return result;
+}
+
+// Fills point_indices from the complete label paths.
+inline void ResolvePointIndices(const LabelTree& tree, PointPredictions& result) {
+  const int64_t levels = result.labels.cols();
+  for (int64_t r = 0; r < result.labels.rows(); ++r) {
+    result.point_indices.data()[r] = tree.PointOfLabels(result.labels.data() + r * levels);
+  }
+}
+
 // Threads of Predict's CPU kernels, as SetComputeThreads set them (0: all cores).
 int ComputeThreads();
 

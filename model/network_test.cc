@@ -5,66 +5,16 @@
 
 #include <sstream>
 
-#include "util/random.h"
+#include "model/network_test_support.h"
 
 namespace hscloc {
 namespace {
 
 using ::testing::HasSubstr;
-
-// A random map: points in a box, a 3-level tree, images that each see a random subset of points.
-struct RandomMap {
-  LabelTree tree;
-  Visibility visibility;
-  NetworkShape shape;
-};
-
-RandomMap MakeRandomMap(uint64_t seed) {
-  Random random(seed);
-  std::vector<Eigen::Vector3d> points(600);
-  for (Eigen::Vector3d& point : points) {
-    point = {random.Uniform(0, 50), random.Uniform(0, 50), random.Uniform(0, 10)};
-  }
-  LabelTreeOptions tree_options;
-  tree_options.levels = 3;
-  tree_options.branching = 12;
-  tree_options.show_progress = false;
-  tree_options.num_threads = 1;
-  RandomMap map;
-  map.tree = LabelTree::Build(points, tree_options);
-  const int num_images = 9;
-  std::vector<uint32_t> image_indices;
-  std::vector<uint32_t> point_indices;
-  for (uint32_t image = 0; image < num_images; ++image) {
-    for (uint32_t point = 0; point < points.size(); ++point) {
-      if (random.Bernoulli(0.1)) {
-        image_indices.push_back(image);
-        point_indices.push_back(point);
-      }
-    }
-  }
-  map.visibility =
-      Visibility::FromObservations(num_images, points.size(), image_indices, point_indices);
-  map.shape = {24, tree_options.levels, tree_options.branching, num_images};
-  return map;
-}
-
-NetworkOptions SmallOptions() {
-  NetworkOptions options;
-  options.channels = 32;
-  options.embedding_dim = 16;
-  options.conditioned_layers = 2;
-  return options;
-}
-
-DescriptorMatrix RandomDescriptors(int64_t rows, int64_t dim, uint64_t seed) {
-  Random random(seed);
-  DescriptorMatrix descriptors(rows, dim);
-  for (int64_t i = 0; i < descriptors.size(); ++i) {
-    descriptors.data()[i] = static_cast<float>(random.Normal());
-  }
-  return descriptors;
-}
+using testing_support::MakeRandomMap;
+using testing_support::RandomDescriptors;
+using testing_support::RandomMap;
+using testing_support::SmallOptions;
 
 TEST(NetworkOptionsTest, ChecksNameTheField) {
   NetworkOptions options;
