@@ -386,7 +386,7 @@ json NetworkAgainstFloor(const Localizer& localizer, const LocalizationQuery& qu
     NetworkInternals::PredictWithTorch(network, padded.descriptors, images,
                                        localizer.map().label_tree(), nullptr);
   });
-  const double flops = network.PredictFlops(2000, 10);
+  const double flops = network.PredictFlops(2000, 10, localizer.map().label_tree());
   const double peak = peaks["peak_gflops"].get<double>();
   const double floor_ms = flops / (peak * 1e9) * 1000;
   return {{"keypoints", 2000},

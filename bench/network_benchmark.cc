@@ -106,7 +106,7 @@ void BM_Predict(benchmark::State& state) {
     state.counters["level" + std::to_string(level) + "_ms"] =
         level_ms[level] / double(state.iterations());
   }
-  const double flops = network.PredictFlops(kQueryKeypoints, kRetrievedImages);
+  const double flops = network.PredictFlops(kQueryKeypoints, kRetrievedImages, map.tree);
   state.counters["GFLOP_per_query"] = flops / 1e9;
   state.counters["GFLOPS"] =
       benchmark::Counter(flops / 1e9 * double(state.iterations()), benchmark::Counter::kIsRate);

@@ -318,7 +318,15 @@ LabelTree LabelTree::Build(const std::vector<Eigen::Vector3d>& points,
         .LabelNode(std::move(all), 0, /*node_key=*/1, ResolveNumThreads(options.num_threads));
   }
   tree.BuildNodesFromLabels(points);
+  tree.FindLevelsWithChoice();
   return tree;
+}
+
+void LabelTree::FindLevelsWithChoice() {
+  level_has_choice_.assign(levels_, 0);
+  for (size_t i = 0; i < labels_.size(); ++i) {
+    if (labels_[i] != 0) level_has_choice_[i % levels_] = 1;
+  }
 }
 
 void LabelTree::BuildNodesFromLabels(const std::vector<Eigen::Vector3d>& points) {
@@ -504,6 +512,7 @@ LabelTree LabelTree::Read(std::istream& stream, const std::string& source) {
       ThrowInvalidArgument("{}: the labels of point {} do not lead to its leaf", source, point);
     }
   }
+  tree.FindLevelsWithChoice();
   return tree;
 }
 

@@ -61,6 +61,10 @@ class LabelTree {
   uint32_t NumChildren(uint32_t node) const { return num_children_[node]; }
   // The point of a leaf node; -1 for inner nodes.
   int64_t PointOfLeaf(uint32_t node) const;
+  // Whether some node offers a choice at `level` (0-based: the level of label `level`), i.e. has
+  // more than one child there. Where none does, every label of that level is 0 and a classifier
+  // has nothing to decide (the last level of a map with fewer than branching^(levels-1) points).
+  bool LevelHasChoice(int level) const { return level_has_choice_.at(level) != 0; }
   // Cluster centre of a node (mean of its points), for the regression variant.
   const Eigen::Vector3f& Center(uint32_t node) const { return centers_[node]; }
   // The node a label prefix leads to (`depth` labels, 0 .. levels; other depths throw), or -1.
@@ -82,9 +86,13 @@ class LabelTree {
   std::vector<uint32_t> num_children_;
   std::vector<int64_t> leaf_point_;  // per node; -1 for inner nodes
   std::vector<Eigen::Vector3f> centers_;
+  std::vector<uint8_t> level_has_choice_;  // per level, derived from labels_
 
   // Derives the nodes (breadth-first, children in label order) and their centres from labels_.
   void BuildNodesFromLabels(const std::vector<Eigen::Vector3d>& points);
+  // Derives level_has_choice_ from labels_: labels are dense, so a level offers a choice exactly
+  // where some point's label there is not 0.
+  void FindLevelsWithChoice();
 };
 
 }  // namespace hscloc

@@ -236,6 +236,29 @@ TEST(LabelTree, ExactlyFullTreeUsesEveryChild) {
   }
 }
 
+TEST(LabelTree, LevelsBelowSingletonClustersOfferNoChoice) {
+  // 60 points, branching 12: level 1 splits them into clusters of about 5, level 2 into single
+  // points, so every level-3 parent has exactly one child.
+  const LabelTreeOptions options = QuietOptions(3, 12, 3);
+  const std::vector<Eigen::Vector3d> points = RandomPoints(60, 3);
+  const LabelTree tree = LabelTree::Build(points, options);
+  EXPECT_TRUE(tree.LevelHasChoice(0));
+  EXPECT_TRUE(tree.LevelHasChoice(1));
+  EXPECT_FALSE(tree.LevelHasChoice(2));
+  for (uint32_t point = 0; point < points.size(); ++point) {
+    EXPECT_EQ(tree.LabelsOfPoint(point)[2], 0);
+  }
+  std::stringstream stream;
+  tree.Write(stream);
+  const LabelTree read = LabelTree::Read(stream, "tree.bin");
+  EXPECT_FALSE(read.LevelHasChoice(2));
+  EXPECT_TRUE(read.LevelHasChoice(1));
+
+  // A full tree offers a choice on every level.
+  const LabelTree full = LabelTree::Build(RandomPoints(1000, 7), QuietOptions(3, 10, 7));
+  for (int level = 0; level < 3; ++level) EXPECT_TRUE(full.LevelHasChoice(level)) << level;
+}
+
 TEST(LabelTree, TooManyPointsThrow) {
   const std::vector<Eigen::Vector3d> points = RandomPoints(1001, 7);
   EXPECT_THAT(

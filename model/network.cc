@@ -22,7 +22,8 @@ namespace hscloc {
 namespace {
 
 constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
-constexpr int64_t kFormatVersion = 1;
+// Version 2 added the trunk's hidden width; version 1 archives have it equal to the channels.
+constexpr int64_t kFormatVersion = 2;
 constexpr int kMaxConditionedLayers = 3;
 
 // Threads of the CPU inference kernels (SetComputeThreads; 0: all cores).
@@ -110,6 +111,7 @@ bool NetworkShape::operator==(const NetworkShape& other) const {
 
 void NetworkOptions::Check() const {
   THROW_CHECK_MSG(channels > 0, "NetworkOptions.channels = {}", channels);
+  THROW_CHECK_MSG(trunk_channels > 0, "NetworkOptions.trunk_channels = {}", trunk_channels);
   THROW_CHECK_MSG(embedding_dim > 0, "NetworkOptions.embedding_dim = {}", embedding_dim);
   THROW_CHECK_MSG(conditioned_layers >= 1 && conditioned_layers <= kMaxConditionedLayers,
                   "NetworkOptions.conditioned_layers = {} (1 .. {})", conditioned_layers,
@@ -117,8 +119,8 @@ void NetworkOptions::Check() const {
 }
 
 bool NetworkOptions::operator==(const NetworkOptions& other) const {
-  return channels == other.channels && embedding_dim == other.embedding_dim &&
-         conditioned_layers == other.conditioned_layers;
+  return channels == other.channels && trunk_channels == other.trunk_channels &&
+         embedding_dim == other.embedding_dim && conditioned_layers == other.conditioned_layers;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -128,8 +130,9 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
     : level_(level) {
   const int64_t channels = options.channels;
   const int64_t embedding = options.embedding_dim;
-  trunk1_ = register_module("trunk1", torch::nn::Linear(shape.descriptor_dim, channels));
-  trunk2_ = register_module("trunk2", torch::nn::Linear(channels, channels));
+  const int64_t trunk_channels = options.trunk_channels;
+  trunk1_ = register_module("trunk1", torch::nn::Linear(shape.descriptor_dim, trunk_channels));
+  trunk2_ = register_module("trunk2", torch::nn::Linear(trunk_channels, channels));
   image_embedding_ =
       register_module("image_embedding", torch::nn::Embedding(shape.num_images + 1, embedding));
   for (int k = 0; k < level; ++k) {
@@ -249,17 +252,6 @@ HscNetImpl::HscNetImpl(const NetworkShape& shape, const NetworkOptions& options)
   }
 }
 
-std::vector<torch::Tensor> HscNetImpl::forward(const torch::Tensor& descriptors,
-                                               const torch::Tensor& image_indices,
-                                               const torch::Tensor& labels) {
-  std::vector<torch::Tensor> logits;
-  for (size_t level = 0; level < levels.size(); ++level) {
-    logits.push_back(levels[level]->forward(descriptors, image_indices,
-                                            labels.narrow(1, 0, static_cast<int64_t>(level))));
-  }
-  return logits;
-}
-
 // ---------------------------------------------------------------------------------------------
 // Network.
 
@@ -300,7 +292,8 @@ void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputAr
   WriteInt64Vector(archive, "shape",
                    {shape.descriptor_dim, shape.levels, shape.branching, shape.num_images});
   WriteInt64Vector(archive, "options",
-                   {options.channels, options.embedding_dim, options.conditioned_layers});
+                   {options.channels, options.embedding_dim, options.conditioned_layers,
+                    options.trunk_channels});
   torch::serialize::OutputArchive weights;
   network.impl_->module->save(weights);
   archive.write("weights", weights);
@@ -309,15 +302,20 @@ void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputAr
 Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
                                    const std::string& source, ComputeDevice device) {
   const std::vector<int64_t> format = ReadInt64Vector(archive, "format", 2, source);
-  if (format[0] != kFormatMagic || format[1] != kFormatVersion) {
-    ThrowInvalidArgument("{}: network archive format {} of version {}, expected version {}", source,
-                         format[0], format[1], kFormatVersion);
+  if (format[0] != kFormatMagic || format[1] < 1 || format[1] > kFormatVersion) {
+    ThrowInvalidArgument("{}: network archive format {} of version {}, expected version 1 to {}",
+                         source, format[0], format[1], kFormatVersion);
   }
   const std::vector<int64_t> s = ReadInt64Vector(archive, "shape", 4, source);
-  const std::vector<int64_t> o = ReadInt64Vector(archive, "options", 3, source);
+  const std::vector<int64_t> o =
+      ReadInt64Vector(archive, "options", format[1] == 1 ? 3 : 4, source);
   NetworkShape shape{static_cast<int>(s[0]), static_cast<int>(s[1]), static_cast<int>(s[2]),
                      static_cast<int>(s[3])};
-  NetworkOptions options{static_cast<int>(o[0]), static_cast<int>(o[1]), static_cast<int>(o[2])};
+  NetworkOptions options;
+  options.channels = static_cast<int>(o[0]);
+  options.embedding_dim = static_cast<int>(o[1]);
+  options.conditioned_layers = static_cast<int>(o[2]);
+  options.trunk_channels = format[1] == 1 ? options.channels : static_cast<int>(o[3]);
   try {
     shape.Check();
     options.Check();
@@ -382,16 +380,22 @@ bool Network::HasSameWeights(const Network& other) const {
   return true;
 }
 
-double Network::PredictFlops(int64_t num_descriptors, int64_t num_images) const {
+double Network::PredictFlops(int64_t num_descriptors, int64_t num_images,
+                             const LabelTree& tree) const {
   const double n = static_cast<double>(num_descriptors);
   const double rows = n * static_cast<double>(num_images);
   const double d = shape().descriptor_dim;
   const double c = options().channels;
+  const double h = options().trunk_channels;
   const double e = options().embedding_dim;
   const double layers = options().conditioned_layers;
-  const double per_level = n * (d * c + c * c + c * c) + rows * (layers - 1) * c * c +
+  const double per_level = n * (d * h + h * c + c * c) + rows * (layers - 1) * c * c +
                            rows * (e * e + 2 * layers * e * c) + rows * c * shape().branching;
-  return 2 * per_level * shape().levels;
+  int levels_with_choice = 0;
+  for (int level = 0; level < std::min(tree.levels(), shape().levels); ++level) {
+    levels_with_choice += tree.LevelHasChoice(level);
+  }
+  return 2 * per_level * levels_with_choice;
 }
 
 PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
@@ -463,6 +467,14 @@ PointPredictions NetworkInternals::PredictWithTorch(const Network& network,
   for (Level& level : impl->module->levels) {
     const Timer level_timer;
     const int depth = level->level();
+    if (!tree.LevelHasChoice(depth)) {
+      // Every parent has a single child: label 0 with certainty, no network to run.
+      labels = torch::cat({labels, torch::zeros({rows, 1}, long_options)}, 1);
+      for (int64_t r = 0; r < rows && masks; ++r)
+        parent_node[r] = ChildNode(parent_node[r], 0, tree);
+      result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
+      continue;
+    }
     const torch::Tensor shared_linear = level->ConditionedLinear(0, level->Trunk(x));
 
     // Rows with the same image and label prefix share their modulation: evaluate the generator

@@ -4,7 +4,7 @@
 // id it predicts the label path of a 3D point in the map's label tree, level by level.
 //
 // Level j (no layers shared between levels):
-//   trunk        t = ELU(Linear(ELU(Linear(x))))                   x: L2-normalized descriptor
+//   trunk        t = ELU(Linear_HC(ELU(Linear_DH(x))))              x: L2-normalized descriptor
 //   generator    z = ELU(Linear(ELU(E_id[image] + sum_{k<j} E_k[label_k])))
 //                gamma_i = Linear(z), beta_i = Linear(z)           one pair per conditioned layer
 //   conditioned  h_i = ELU(gamma_i * (W_i h_{i-1} + b_i) + beta_i)  h_0 = t
@@ -66,9 +66,10 @@ struct NetworkShape {
 };
 
 struct NetworkOptions {
-  int channels = 256;          // C: width of each level's trunk and conditioned layers
+  int channels = 512;          // C: width of each level's conditioned layers and trunk output
   int embedding_dim = 64;      // width of the image and label embeddings and of the generator
   int conditioned_layers = 1;  // FiLM-modulated layers per level, 1 .. 3
+  int trunk_channels = 512;    // H: width of the trunk's hidden layer (runs once per keypoint)
 
   void Check() const;
   bool operator==(const NetworkOptions& other) const;
@@ -132,8 +133,9 @@ class Network {
 
   // Floating-point operations (2 per multiply-add) of the matrix products of one Predict call,
   // counting the generator once per (image, descriptor) pair, i.e. without the deduplication of
-  // identical (image, label prefix) rows that Predict performs.
-  double PredictFlops(int64_t num_descriptors, int64_t num_images) const;
+  // identical (image, label prefix) rows that Predict performs. Levels of `tree` that offer no
+  // choice cost nothing (Predict skips them).
+  double PredictFlops(int64_t num_descriptors, int64_t num_images, const LabelTree& tree) const;
 
   // True when both networks have the same shape, options and bit-identical weights.
   bool HasSameWeights(const Network& other) const;

@@ -35,16 +35,17 @@ void ForEachRowBlock(int64_t rows, const std::function<void(int64_t begin, int64
 // Per-thread buffers of one row block, kept between blocks and calls: fresh allocations of this
 // size would each be zeroed and page-faulted in.
 struct BlockScratch {
-  std::vector<float> embedding, generator, features, linear, logits;
+  std::vector<float> hidden, embedding, generator, features, linear, logits;
   std::vector<std::vector<float>> gammas, betas;
   std::vector<int32_t> run_of_row;
   std::vector<int64_t> descriptor_of_row;
 
-  void Reserve(int64_t rows, int64_t channels, int64_t embedding_dim, int64_t branching,
-               int layers) {
+  void Reserve(int64_t rows, int64_t trunk_channels, int64_t channels, int64_t embedding_dim,
+               int64_t branching, int layers) {
     const auto grow = [](auto& buffer, int64_t size) {
       if (static_cast<int64_t>(buffer.size()) < size) buffer.resize(size);
     };
+    grow(hidden, rows * trunk_channels);
     grow(embedding, rows * embedding_dim);
     grow(generator, rows * embedding_dim);
     grow(features, rows * channels);
@@ -75,6 +76,7 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
   const int64_t rows = n * k;
   const int64_t d = s.descriptor_dim;
   const int64_t c = network.options().channels;
+  const int64_t h = network.options().trunk_channels;
   const int64_t e = network.options().embedding_dim;
   const int64_t branching = s.branching;
   PointPredictions result = AllocatePredictions(k, n, s.levels);
@@ -99,6 +101,15 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
   for (const Level& level : NetworkInternals::Module(network)->levels) {
     const Timer level_timer;
     const int depth = level->level();
+    if (!tree.LevelHasChoice(depth)) {
+      // Every parent has a single child: label 0 with certainty, no network to run.
+      for (int64_t r = 0; r < rows; ++r) {
+        labels[r * s.levels + depth] = 0;
+        if (masks) parent_node[r] = ChildNode(parent_node[r], 0, tree);
+      }
+      result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
+      continue;
+    }
     const LevelWeights w = level->CpuWeights();
     const int layers = level->NumConditionedLayers();
 
@@ -110,10 +121,10 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
     ForEachRowBlock(n, [&](int64_t begin, int64_t end) {
       const int64_t m = end - begin;
       thread_local BlockScratch scratch;
-      scratch.Reserve(m, c, e, branching, layers);
-      dk::Linear(scaled.data() + begin * d, m, d, w.trunk1_weight, w.trunk1_bias, c, true,
-                 scratch.features.data());
-      dk::Linear(scratch.features.data(), m, c, w.trunk2_weight, w.trunk2_bias, c, true,
+      scratch.Reserve(m, h, c, e, branching, layers);
+      dk::Linear(scaled.data() + begin * d, m, d, w.trunk1_weight, w.trunk1_bias, h, true,
+                 scratch.hidden.data());
+      dk::Linear(scratch.hidden.data(), m, h, w.trunk2_weight, w.trunk2_bias, c, true,
                  scratch.linear.data());
       dk::Linear(scratch.linear.data(), m, c, w.conditioned_weights[0], w.conditioned_biases[0], c,
                  false, shared.data() + begin * c);
@@ -134,7 +145,7 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
     ForEachRowBlock(rows, [&](int64_t begin, int64_t end) {
       const int64_t m = end - begin;
       thread_local BlockScratch scratch;
-      scratch.Reserve(m, c, e, branching, layers);
+      scratch.Reserve(m, h, c, e, branching, layers);
       int64_t runs = 0;
       for (int64_t i = begin; i < end; ++i) {
         if (i == begin || keyed_rows[i].first != keyed_rows[i - 1].first) {

@@ -5,6 +5,7 @@
 #include "model/network.h"
 #include "model/network_module.h"
 #include "model/network_test_support.h"
+#include "util/random.h"
 
 namespace hscloc {
 namespace {
@@ -39,6 +40,7 @@ TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
     options.channels = 48;
     options.embedding_dim = 24;
     options.conditioned_layers = layers;
+    options.trunk_channels = 40 + 16 * layers;  // differs from the channels
     const Network network(fixture.shape, options, 100 + layers);
     for (const Visibility* mask : {static_cast<const Visibility*>(nullptr), &fixture.visibility}) {
       SCOPED_TRACE(testing::Message()
@@ -48,6 +50,34 @@ TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
           NetworkInternals::PredictWithTorch(network, descriptors, images, fixture.tree, mask));
     }
   }
+}
+
+TEST(NetworkCpuInferenceTest, LevelsWithoutChoiceTakeTheOnlyChildWithCertainty) {
+  // 60 points under branching 12: the third level only ever has one child.
+  Random random(21);
+  std::vector<Eigen::Vector3d> points(60);
+  for (Eigen::Vector3d& point : points) point = {random.Uniform(0, 9), random.Uniform(0, 9), 0};
+  LabelTreeOptions tree_options;
+  tree_options.levels = 3;
+  tree_options.branching = 12;
+  tree_options.show_progress = false;
+  const LabelTree tree = LabelTree::Build(points, tree_options);
+  ASSERT_FALSE(tree.LevelHasChoice(2));
+  const NetworkShape shape{16, 3, 12, 4};
+  const Network network(shape, testing_support::SmallOptions(), 5);
+  const DescriptorMatrix descriptors = RandomDescriptors(200, shape.descriptor_dim, 6);
+  const std::vector<uint32_t> images = {0, 3, 4};
+  const PointPredictions kernels = network.Predict(descriptors, images, tree);
+  const PointPredictions torch_ops =
+      NetworkInternals::PredictWithTorch(network, descriptors, images, tree, nullptr);
+  ExpectSamePredictions(kernels, torch_ops);
+  EXPECT_TRUE((kernels.labels.col(2).array() == 0).all());
+  EXPECT_EQ(kernels.level_milliseconds.size(), 3u);
+  // The skipped level costs no FLOPs: two thirds of a pass whose three levels all decide.
+  const RandomMap full = MakeRandomMap(1);
+  ASSERT_TRUE(full.tree.LevelHasChoice(2));
+  EXPECT_NEAR(network.PredictFlops(200, 3, tree),
+              2.0 / 3.0 * network.PredictFlops(200, 3, full.tree), 1.0);
 }
 
 TEST(NetworkCpuInferenceTest, ThreadCountDoesNotChangeResults) {

@@ -79,12 +79,6 @@ class HscNetImpl : public torch::nn::Module {
  public:
   HscNetImpl(const NetworkShape& shape, const NetworkOptions& options);
 
-  // Teacher-forced logits of every level for R rows: normalized descriptors [R, D], image indices
-  // [R] and ground-truth labels [R, levels] (int64), of which level j sees the first j columns.
-  std::vector<torch::Tensor> forward(const torch::Tensor& descriptors,
-                                     const torch::Tensor& image_indices,
-                                     const torch::Tensor& labels);
-
   std::vector<Level> levels;
 };
 TORCH_MODULE(HscNet);

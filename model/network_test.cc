@@ -165,8 +165,8 @@ TEST(NetworkTest, RejectsInputsThatDoNotFit) {
 TEST(NetworkTest, FlopCountGrowsWithTheImageBatch) {
   const RandomMap map = MakeRandomMap(7);
   const Network network(map.shape, SmallOptions(), 1);
-  const double one = network.PredictFlops(1000, 1);
-  const double ten = network.PredictFlops(1000, 10);
+  const double one = network.PredictFlops(1000, 1, map.tree);
+  const double ten = network.PredictFlops(1000, 10, map.tree);
   EXPECT_GT(one, 0);
   EXPECT_GT(ten, 5 * one);
   EXPECT_LT(ten, 10 * one);

@@ -54,6 +54,7 @@ inline NetworkOptions SmallOptions() {
   options.channels = 32;
   options.embedding_dim = 16;
   options.conditioned_layers = 2;
+  options.trunk_channels = 40;
   return options;
 }
 

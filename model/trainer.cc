@@ -2,6 +2,7 @@
 
 #include <ATen/Parallel.h>
 #include <fmt/format.h>
+#include <malloc.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -25,6 +26,16 @@ namespace {
 constexpr uint64_t kStreamHoldout = 0x686f6c64;  // "hold"
 constexpr uint64_t kStreamShuffle = 0x73687566;  // "shuf"
 constexpr uint64_t kStreamAugment = 0x6175676d;  // "augm"
+
+// Every training step allocates and frees the same few-megabyte activations. glibc's defaults hand
+// such blocks back to the kernel on free (mmap'd chunks, heap trimming), so each step page-faulted
+// them in again: half of the CPU time went to the kernel, and training ran at 0.4 times the speed
+// (docs/decisions.md). Freed memory is kept for reuse instead, for the whole process.
+void KeepFreedMemoryForReuse() {
+  mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's largest: blocks below it come from the heap
+  mallopt(M_TRIM_THRESHOLD, 1 << 30);
+  mallopt(M_TOP_PAD, 64 << 20);
+}
 
 // Checkpoint layout version; the network inside carries its own.
 constexpr int64_t kCheckpointVersion = 1;
@@ -270,6 +281,7 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
   const size_t num_held_out = scene.NumObservations() - num_training;
 
   SetComputeThreads(options.num_threads);
+  KeepFreedMemoryForReuse();
   const torch::Device device = TorchDevice(options.device);
   const NetworkShape shape{static_cast<int>(scene.Dimension()), tree.levels(), tree.branching(),
                            static_cast<int>(scene.NumImages())};
@@ -371,14 +383,20 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
     learning_rate = ScheduledLearningRate(options, progress_of(state.iteration, elapsed()));
     SetLearningRate(optimizer, learning_rate);
     const Batch batch = MakeBatch(scene, tree, options, order, state.iteration, device);
-    const std::vector<torch::Tensor> logits =
-        module->forward(NormalizeRows(batch.descriptors), batch.images, batch.labels);
+    const torch::Tensor descriptors = NormalizeRows(batch.descriptors);
     torch::Tensor loss = torch::zeros({}, torch::TensorOptions().device(device));
     std::vector<torch::Tensor> statistics;
     for (int level = 0; level < levels; ++level) {
+      if (!tree.LevelHasChoice(level)) {
+        // Nothing to learn: Predict takes the only child without running this level.
+        statistics.push_back(torch::ones({}, torch::TensorOptions().device(device)));
+        continue;
+      }
+      const torch::Tensor logits = module->levels[level]->forward(
+          descriptors, batch.images, batch.labels.narrow(1, 0, static_cast<int64_t>(level)));
       const torch::Tensor target = batch.labels.select(1, level);
-      loss = loss + torch::nn::functional::cross_entropy(logits[level], target);
-      statistics.push_back(logits[level].detach().argmax(1).eq(target).to(torch::kFloat32).mean());
+      loss = loss + torch::nn::functional::cross_entropy(logits, target);
+      statistics.push_back(logits.detach().argmax(1).eq(target).to(torch::kFloat32).mean());
     }
     optimizer.zero_grad();
     loss.backward();
@@ -473,6 +491,7 @@ void WriteNetworkToBundle(
                    {"branching", shape.branching},
                    {"num_images", shape.num_images}};
   json["options"] = {{"channels", network_options.channels},
+                     {"trunk_channels", network_options.trunk_channels},
                      {"embedding_dim", network_options.embedding_dim},
                      {"conditioned_layers", network_options.conditioned_layers}};
   json["parameters"] = result.network.NumParameters();

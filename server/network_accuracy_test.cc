@@ -152,12 +152,11 @@ TEST(NetworkAccuracyTest, ImageConditioningResolvesRepeatedStructure) {
     // Nearest neighbour loses a large share on ambiguous points; the network loses little.
     EXPECT_LT(s.ambiguous.Nn(), 0.85 * s.unique.Nn()) << name;
     EXPECT_GT(s.ambiguous.Hsc(), 0.9 * s.unique.Hsc()) << name;
-    // By day the network is ahead outright on ambiguous points. At night, whose descriptors are
-    // much noisier than any database view, the test's short training leaves it behind nearest
-    // neighbour on every point; that is reported, not asserted.
-    if (condition == QueryCondition::kDay) {
-      EXPECT_GT(s.ambiguous.Hsc(), s.ambiguous.Nn() + 0.1) << name;
-    }
+    // On ambiguous points the network is ahead outright: by day by a wide margin, at night, whose
+    // descriptors are far noisier than any database view, by less.
+    EXPECT_GT(s.ambiguous.Hsc(),
+              s.ambiguous.Nn() + (condition == QueryCondition::kDay ? 0.2 : 0.08))
+        << name;
   }
 }
 

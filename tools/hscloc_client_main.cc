@@ -37,8 +37,10 @@ wire::LocalizeRequest RequestFromFeatures(const std::string& name, const wire::C
                              static_cast<uint32_t>(features.Dimension()), float16);
 }
 
+// The server sends the unit quaternion it computed, as doubles; it is written as received, so that
+// a submission made through the server is bit for bit the one `hscloc localize` writes.
 Rigid3d PoseOf(const wire::Pose& pose) {
-  return Rigid3d(Eigen::Quaterniond(pose.qw(), pose.qx(), pose.qy(), pose.qz()).normalized(),
+  return Rigid3d(Eigen::Quaterniond(pose.qw(), pose.qx(), pose.qy(), pose.qz()),
                  Eigen::Vector3d(pose.tx(), pose.ty(), pose.tz()));
 }
 

@@ -137,7 +137,13 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
       ->capture_default_str();
   command->add_option("--lr", options.learning_rate, "Adam learning rate (halved at 50/75/90 %)")
       ->capture_default_str();
-  command->add_option("--channels", options.network.channels, "Width C of every level")
+  command
+      ->add_option("--channels", options.network.channels,
+                   "Width C of each level's conditioned layers")
+      ->capture_default_str();
+  command
+      ->add_option("--trunk-channels", options.network.trunk_channels,
+                   "Width H of each level's descriptor trunk (runs once per keypoint)")
       ->capture_default_str();
   command
       ->add_option("--embedding-dim", options.network.embedding_dim,
