@@ -470,8 +470,7 @@ PointPredictions NetworkInternals::PredictWithTorch(const Network& network,
     if (!tree.LevelHasChoice(depth)) {
       // Every parent has a single child: label 0 with certainty, no network to run.
       labels = torch::cat({labels, torch::zeros({rows, 1}, long_options)}, 1);
-      for (int64_t r = 0; r < rows && masks; ++r)
-        parent_node[r] = ChildNode(parent_node[r], 0, tree);
+      for (int64_t& parent : parent_node) parent = ChildNode(parent, 0, tree);
       result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
       continue;
     }

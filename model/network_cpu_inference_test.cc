@@ -67,11 +67,25 @@ TEST(NetworkCpuInferenceTest, LevelsWithoutChoiceTakeTheOnlyChildWithCertainty) 
   const Network network(shape, testing_support::SmallOptions(), 5);
   const DescriptorMatrix descriptors = RandomDescriptors(200, shape.descriptor_dim, 6);
   const std::vector<uint32_t> images = {0, 3, 4};
+  std::vector<uint32_t> seen_images, seen_points;
+  for (uint32_t image = 0; image < 4; ++image) {
+    for (uint32_t point = 0; point < points.size(); ++point) {
+      if (random.Bernoulli(0.3)) {
+        seen_images.push_back(image);
+        seen_points.push_back(point);
+      }
+    }
+  }
+  const Visibility visibility =
+      Visibility::FromObservations(4, points.size(), seen_images, seen_points);
+  for (const Visibility* mask : {static_cast<const Visibility*>(nullptr), &visibility}) {
+    SCOPED_TRACE(testing::Message() << "mask " << (mask != nullptr));
+    const PointPredictions masked_or_not = network.Predict(descriptors, images, tree, mask);
+    ExpectSamePredictions(masked_or_not, NetworkInternals::PredictWithTorch(network, descriptors,
+                                                                            images, tree, mask));
+    EXPECT_TRUE((masked_or_not.labels.col(2).array() == 0).all());
+  }
   const PointPredictions kernels = network.Predict(descriptors, images, tree);
-  const PointPredictions torch_ops =
-      NetworkInternals::PredictWithTorch(network, descriptors, images, tree, nullptr);
-  ExpectSamePredictions(kernels, torch_ops);
-  EXPECT_TRUE((kernels.labels.col(2).array() == 0).all());
   EXPECT_EQ(kernels.level_milliseconds.size(), 3u);
   // The skipped level costs no FLOPs: two thirds of a pass whose three levels all decide.
   const RandomMap full = MakeRandomMap(1);

@@ -29,7 +29,7 @@ constexpr uint64_t kStreamAugment = 0x6175676d;  // "augm"
 
 // Every training step allocates and frees the same few-megabyte activations. glibc's defaults hand
 // such blocks back to the kernel on free (mmap'd chunks, heap trimming), so each step page-faulted
-// them in again: half of the CPU time went to the kernel, and training ran at 0.4 times the speed
+// them in again: half of the CPU time went to the kernel, and training ran at less than half speed
 // (docs/decisions.md). Freed memory is kept for reuse instead, for the whole process.
 void KeepFreedMemoryForReuse() {
   mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's largest: blocks below it come from the heap
