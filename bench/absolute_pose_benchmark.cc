@@ -10,7 +10,7 @@
 #include <utility>
 #include <vector>
 
-#include "geometry/absolute_pose.h"
+#include "pose/absolute_pose.h"
 #include "util/random.h"
 
 namespace hscloc {

@@ -7,7 +7,7 @@
 #include <cstdlib>
 #include <filesystem>
 
-#include "server/localization_map.h"
+#include "localization/localization_map.h"
 
 namespace hscloc {
 namespace {

@@ -10,11 +10,11 @@
 #include <memory>
 #include <vector>
 
-#include "model/label_tree.h"
+#include "map/label_tree.h"
 #include "model/network.h"
-#include "model/scene.h"
+#include "scene/scene.h"
 #include "model/trainer.h"
-#include "model/visibility.h"
+#include "map/visibility.h"
 #include "util/random.h"
 
 namespace hscloc {

@@ -27,10 +27,10 @@
 #include <string>
 #include <vector>
 
-#include "model/features.h"
-#include "model/label_tree.h"
-#include "model/map_bundle.h"
-#include "model/visibility.h"
+#include "scene/features.h"
+#include "map/label_tree.h"
+#include "map/map_bundle.h"
+#include "map/visibility.h"
 
 namespace hscloc {
 

@@ -7,9 +7,9 @@
 #include <cstdint>
 #include <vector>
 
-#include "model/label_tree.h"
+#include "map/label_tree.h"
 #include "model/network.h"
-#include "model/visibility.h"
+#include "map/visibility.h"
 
 namespace hscloc {
 

@@ -5,9 +5,9 @@
 #include <Eigen/Core>
 #include <vector>
 
-#include "model/label_tree.h"
+#include "map/label_tree.h"
 #include "model/network.h"
-#include "model/visibility.h"
+#include "map/visibility.h"
 #include "util/random.h"
 
 namespace hscloc::testing_support {

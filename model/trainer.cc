@@ -11,7 +11,7 @@
 #include <numeric>
 #include <optional>
 
-#include "model/map_bundle.h"
+#include "map/map_bundle.h"
 #include "model/network_module.h"
 #include "util/check.h"
 #include "util/parallel.h"

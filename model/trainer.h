@@ -19,10 +19,10 @@
 #include <utility>
 #include <vector>
 
-#include "model/label_tree.h"
+#include "map/label_tree.h"
 #include "model/network.h"
-#include "model/scene.h"
-#include "model/visibility.h"
+#include "scene/scene.h"
+#include "map/visibility.h"
 
 namespace hscloc {
 

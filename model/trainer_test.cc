@@ -9,12 +9,12 @@
 #include <iostream>
 #include <memory>
 
-#include "model/colmap_io.h"
-#include "model/feature_io.h"
-#include "model/map_bundle.h"
-#include "model/scene_io.h"
-#include "model/synthetic_city.h"
-#include "model/synthetic_city_writer.h"
+#include "scene/colmap_io.h"
+#include "scene/feature_io.h"
+#include "map/map_bundle.h"
+#include "scene/scene_io.h"
+#include "synthetic/synthetic_city.h"
+#include "synthetic/synthetic_city_writer.h"
 #include "util/testing.h"
 
 namespace hscloc {

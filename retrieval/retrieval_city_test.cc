@@ -6,7 +6,7 @@
 #include <iostream>
 #include <string>
 
-#include "model/synthetic_city.h"
+#include "synthetic/synthetic_city.h"
 #include "retrieval/global_index.h"
 #include "retrieval/vlad.h"
 #include "util/parallel.h"

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "model/features.h"
+#include "scene/features.h"
 
 namespace hscloc {
 

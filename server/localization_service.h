@@ -25,7 +25,7 @@
 #include <thread>
 #include <vector>
 
-#include "server/localizer.h"
+#include "localization/localizer.h"
 #include "server/wire.h"
 
 namespace hscloc {

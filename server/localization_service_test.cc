@@ -12,8 +12,8 @@
 #include <zmq_addon.hpp>
 
 #include "client/localization_client.h"
-#include "model/feature_io.h"
-#include "model/query_io.h"
+#include "scene/feature_io.h"
+#include "scene/query_io.h"
 #include "util/random.h"
 #include "util/testing.h"
 

@@ -7,7 +7,7 @@
 #include <string>
 
 #include "proto/hscloc.pb.h"
-#include "server/localizer.h"
+#include "localization/localizer.h"
 
 namespace hscloc {
 

@@ -13,7 +13,7 @@
 #include <sstream>
 #include <thread>
 
-#include "model/query_io.h"
+#include "scene/query_io.h"
 #include "util/testing.h"
 
 namespace hscloc {

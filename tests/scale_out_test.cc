@@ -10,8 +10,8 @@
 #include <thread>
 
 #include "client/localization_client.h"
-#include "model/feature_io.h"
-#include "model/query_io.h"
+#include "scene/feature_io.h"
+#include "scene/query_io.h"
 #include "server/broker.h"
 #include "server/wire.h"
 #include "util/testing.h"

@@ -3,7 +3,7 @@
 #include <iostream>
 #include <memory>
 
-#include "server/map_builder.h"
+#include "localization/map_builder.h"
 #include "tools/commands.h"
 #include "util/timer.h"
 

@@ -13,15 +13,15 @@
 #include <string>
 #include <vector>
 
-#include "model/feature_io.h"
-#include "model/pose_evaluation.h"
-#include "model/query_io.h"
-#include "model/synthetic_city.h"
-#include "model/synthetic_city_writer.h"
+#include "scene/feature_io.h"
+#include "localization/pose_evaluation.h"
+#include "scene/query_io.h"
+#include "synthetic/synthetic_city.h"
+#include "synthetic/synthetic_city_writer.h"
 #include "model/trainer.h"
 #include "server/localization_service.h"
-#include "server/localizer.h"
-#include "server/map_builder.h"
+#include "localization/localizer.h"
+#include "localization/map_builder.h"
 #include "tools/commands.h"
 #include "util/check.h"
 #include "util/timer.h"

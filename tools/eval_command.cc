@@ -7,8 +7,8 @@
 #include <unordered_set>
 #include <vector>
 
-#include "model/pose_evaluation.h"
-#include "model/query_io.h"
+#include "localization/pose_evaluation.h"
+#include "scene/query_io.h"
 #include "tools/commands.h"
 #include "util/check.h"
 

@@ -10,10 +10,10 @@
 #include <mutex>
 #include <thread>
 
-#include "client/feature_extraction.h"
+#include "features/feature_extraction.h"
 #include "client/localization_client.h"
-#include "model/feature_io.h"
-#include "model/query_io.h"
+#include "scene/feature_io.h"
+#include "scene/query_io.h"
 #include "util/progress_bar.h"
 #include "util/timer.h"
 

@@ -12,9 +12,9 @@
 #include <unordered_set>
 #include <vector>
 
-#include "model/feature_io.h"
-#include "model/query_io.h"
-#include "server/localizer.h"
+#include "scene/feature_io.h"
+#include "scene/query_io.h"
+#include "localization/localizer.h"
 #include "tools/commands.h"
 #include "util/check.h"
 #include "util/parallel.h"

@@ -4,8 +4,8 @@
 #include <iostream>
 #include <memory>
 
-#include "model/synthetic_city.h"
-#include "model/synthetic_city_writer.h"
+#include "synthetic/synthetic_city.h"
+#include "synthetic/synthetic_city_writer.h"
 #include "tools/commands.h"
 #include "util/timer.h"
 

@@ -8,7 +8,7 @@
 
 #include "model/network.h"
 #include "model/trainer.h"
-#include "server/localization_map.h"
+#include "localization/localization_map.h"
 #include "tools/commands.h"
 #include "util/check.h"
 #include "util/timer.h"

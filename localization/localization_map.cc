@@ -1,0 +1,103 @@
+#include "localization/localization_map.h"
+
+#include <sstream>
+
+#include "map/map_bundle.h"
+#include "scene/scene_io.h"
+#include "util/binary_io.h"
+#include "util/check.h"
+
+namespace hscloc {
+namespace {
+
+constexpr uint32_t kGlobalDescriptorsMagic = 0x44475348;  // "HSGD"
+constexpr uint32_t kGlobalDescriptorsVersion = 1;
+
+// Deserializes one blob, prefixing any error with the bundle so the operator knows which map.
+template <typename Reader>
+auto ReadBlob(const MapBundle& bundle, const char* name, Reader read) {
+  if (!bundle.HasBlob(name)) {
+    ThrowInvalidArgument("map bundle {}: blob '{}' is missing", bundle.dir().string(), name);
+  }
+  std::istringstream stream(bundle.Blob(name));
+  const std::string source = (bundle.dir() / name).string();
+  return read(stream, source);
+}
+
+}  // namespace
+
+void WriteGlobalDescriptors(std::ostream& stream, const GlobalDescriptorMatrix& descriptors) {
+  WriteBinary(stream, kGlobalDescriptorsMagic);
+  WriteBinary(stream, kGlobalDescriptorsVersion);
+  WriteBinary<uint64_t>(stream, descriptors.rows());
+  WriteBinary<uint64_t>(stream, descriptors.cols());
+  WriteBinaryArray(stream, descriptors.data(), descriptors.size());
+}
+
+GlobalDescriptorMatrix ReadGlobalDescriptors(std::istream& stream, const std::string& source) {
+  if (ReadBinary<uint32_t>(stream, source + ": magic") != kGlobalDescriptorsMagic ||
+      ReadBinary<uint32_t>(stream, source + ": version") != kGlobalDescriptorsVersion) {
+    ThrowInvalidArgument("{}: not a global descriptor blob of version {}", source,
+                         kGlobalDescriptorsVersion);
+  }
+  const auto rows = ReadBinary<uint64_t>(stream, source + ": rows");
+  const auto cols = ReadBinary<uint64_t>(stream, source + ": columns");
+  if (rows > (uint64_t{1} << 32) || cols > (uint64_t{1} << 20)) {
+    ThrowInvalidArgument("{}: impossible shape {} x {}", source, rows, cols);
+  }
+  GlobalDescriptorMatrix descriptors(rows, cols);
+  ReadBinaryArray(stream, descriptors.data(), descriptors.size(), source + ": descriptors");
+  return descriptors;
+}
+
+std::shared_ptr<const LocalizationMap> LocalizationMap::Load(
+    const std::filesystem::path& bundle_dir, const LocalizationMapLoadOptions& options) {
+  const MapBundle bundle = MapBundle::Open(bundle_dir);
+  auto map = std::make_shared<LocalizationMap>();
+  map->dir_ = bundle_dir;
+  map->metadata_ = bundle.metadata();
+  map->scene_ = ReadBlob(bundle, map_blobs::kScene, ReadSceneGeometry);
+  if (options.load_observations) {
+    ReadBlob(bundle, map_blobs::kObservations,
+             [&](std::istream& stream, const std::string& source) {
+               ReadSceneObservations(stream, source, map->scene_);
+               return 0;
+             });
+  }
+  map->label_tree_ = ReadBlob(bundle, map_blobs::kLabelTree, LabelTree::Read);
+  map->visibility_ = ReadBlob(bundle, map_blobs::kVisibility, Visibility::Read);
+  if (bundle.HasBlob(map_blobs::kVlad)) {
+    map->vlad_ = ReadBlob(bundle, map_blobs::kVlad, VladEncoder::Read);
+  }
+  map->global_descriptors_ = ReadBlob(bundle, map_blobs::kGlobalDescriptors, ReadGlobalDescriptors);
+  map->global_index_ = ReadBlob(bundle, map_blobs::kGlobalIndex, GlobalIndex::Read);
+  map->descriptor_dim_ = map->metadata_.value("descriptor_dim", 0);
+  if (options.load_network && bundle.HasBlob(network_blobs::kNetwork)) {
+    map->network_ = std::make_shared<const Network>(Network::FromBundle(bundle, options.device));
+  }
+
+  // The parts were written together; a mismatch means a bundle assembled from different maps.
+  const auto fail = [&](const std::string& what) {
+    ThrowInvalidArgument("map bundle {}: inconsistent parts: {}", bundle_dir.string(), what);
+  };
+  const Scene& scene = map->scene_;
+  if (map->label_tree_.NumPoints() != scene.NumPoints()) {
+    fail(fmt::format("label tree of {} points, scene of {}", map->label_tree_.NumPoints(),
+                     scene.NumPoints()));
+  }
+  if (map->visibility_.NumImages() != scene.NumImages() ||
+      map->visibility_.NumPoints() != scene.NumPoints()) {
+    fail("visibility lists do not match the scene's images and points");
+  }
+  if (map->global_index_.size() != scene.NumImages() ||
+      static_cast<size_t>(map->global_descriptors_.rows()) != scene.NumImages()) {
+    fail("retrieval index does not hold one descriptor per database image");
+  }
+  if (map->vlad_ && map->vlad_->descriptor_dim() != map->descriptor_dim_) {
+    fail(fmt::format("VLAD codebook of dimension {}, map descriptors of {}",
+                     map->vlad_->descriptor_dim(), map->descriptor_dim_));
+  }
+  return map;
+}
+
+}  // namespace hscloc

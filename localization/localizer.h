@@ -1,0 +1,143 @@
+// The localization pipeline of the "Aachen hybrid" of Li et al., CVPR 2020, for one query:
+//   retrieval   the query's global descriptor (VLAD of its local descriptors, or the one it brings)
+//               -> the top-K database images of the map's index
+//   matching    the hierarchical classification network predicts, for each keypoint and each
+//               retrieved image, the 3D point it sees (the descriptor-only layers once, the K
+//               image ids as one batch); or, as the explicit-matching baseline, mutual nearest
+//               neighbours with a ratio test against each retrieved image's observations
+//   visibility  matches to points the retrieved image does not observe are dropped
+//   pose        PnP-RANSAC and refinement per retrieved image; the pose with the most inliers wins
+// Thread-safe: any number of threads may call Localize concurrently on one Localizer.
+#pragma once
+
+#include <Eigen/Core>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "pose/absolute_pose.h"
+#include "geometry/camera.h"
+#include "geometry/rigid3d.h"
+#include "scene/features.h"
+#include "model/network.h"
+#include "localization/localization_map.h"
+
+namespace hscloc {
+
+enum class Matcher {
+  kNetwork,          // the hierarchical scene coordinate classification network ("hsc")
+  kNearestNeighbor,  // mutual nearest neighbours + ratio test against the image's observations
+                     // ("nn")
+};
+// "hsc" or "nn"; throws std::invalid_argument otherwise.
+Matcher ParseMatcher(const std::string& name);
+std::string MatcherName(Matcher matcher);
+
+struct LocalizerOptions {
+  Matcher matcher = Matcher::kNetwork;
+  // Retrieved database images, each a pose candidate (the paper: 10).
+  int top_k = 10;
+  // Drop matches to points the candidate image does not observe.
+  bool visibility_filter = true;
+  // Condition the network on the candidate's image id; off, it sees the "no image" id (an
+  // ablation that needs a network trained with image dropout to be meaningful).
+  bool use_image_id = true;
+  // Restrict the network's choices at each level to subtrees the candidate image observes.
+  bool visibility_masked_decoding = false;
+  // All K candidates are posed and the most inliers win (the paper). Otherwise candidates are taken
+  // in retrieval order and the first with at least early_exit_inliers inliers is returned.
+  bool exhaustive = true;
+  int early_exit_inliers = 100;
+  // Nearest-neighbour baseline: Lowe's ratio on descriptor distances, and mutual best matches.
+  double nn_ratio = 0.9;
+  bool nn_mutual = true;
+  AbsolutePoseOptions pose;
+
+  // Throws std::invalid_argument naming the field.
+  void Check() const;
+};
+
+struct LocalizationQuery {
+  std::string name;
+  Camera camera;
+  KeypointMatrix keypoints;      // N x 2 pixels (COLMAP convention)
+  DescriptorMatrix descriptors;  // N x D, D the map's descriptor dimension
+  // The query's global descriptor for retrieval; required when the map has no VLAD encoder.
+  std::optional<Eigen::VectorXf> global_descriptor;
+};
+
+// One retrieved database image and the pose estimated against it.
+struct LocalizationCandidate {
+  uint32_t image_index = 0;  // dense index in the map's scene
+  image_t image_id = kInvalidImageId;
+  float retrieval_score = 0;
+  bool evaluated = false;  // false when an early exit skipped it
+  int num_matches = 0;     // after the visibility filter
+  int num_inliers = 0;
+  bool pose_found = false;
+  Rigid3d cam_from_world;
+};
+
+// Milliseconds per stage; `matching` is the network or the nearest-neighbour search.
+struct StageTimings {
+  double retrieval_ms = 0;
+  double matching_ms = 0;
+  double visibility_ms = 0;
+  double pose_ms = 0;
+  double total_ms = 0;
+};
+
+struct PoseResult {
+  bool success = false;
+  std::string failure_reason;  // empty on success
+  // The winning candidate's pose; on failure the top-1 retrieved image's pose when there is one.
+  Rigid3d cam_from_world;
+  int num_inliers = 0;
+  int best_candidate = -1;  // index into candidates, -1 on failure
+  std::vector<LocalizationCandidate> candidates;
+  // The winning candidate's 2D-3D matches: keypoint row, dense point index, inlier flag.
+  std::vector<int> match_keypoints;
+  std::vector<uint32_t> match_points;
+  std::vector<char> match_inliers;
+  StageTimings timings;
+};
+
+class Localizer {
+ public:
+  // `network` may be null when only the nearest-neighbour matcher is used; that matcher needs a map
+  // loaded with its observations. Throws std::invalid_argument when the options need what the map
+  // or network lacks, or the network does not fit the map.
+  Localizer(std::shared_ptr<const LocalizationMap> map, std::shared_ptr<const Network> network,
+            const LocalizerOptions& options = {});
+
+  // Loads the bundle (with observations when the matcher needs them) and its network.
+  static Localizer FromBundle(const std::filesystem::path& bundle_dir,
+                              const LocalizerOptions& options = {},
+                              ComputeDevice device = ComputeDevice::kCpu);
+
+  // Throws std::invalid_argument for a malformed query: descriptor dimension other than the map's,
+  // keypoint and descriptor counts that differ, non-finite numbers, an invalid camera, no global
+  // descriptor where the map has no VLAD encoder, or one of the wrong dimension. Failing to
+  // localize is a result (success = false), not an exception.
+  PoseResult Localize(const LocalizationQuery& query) const;
+  // With per-query options (e.g. a client's top_k); they are checked against the map as above.
+  PoseResult Localize(const LocalizationQuery& query, const LocalizerOptions& options) const;
+
+  const LocalizationMap& map() const { return *map_; }
+  const LocalizerOptions& options() const { return options_; }
+  const Network* network() const { return network_.get(); }
+
+ private:
+  void CheckOptionsFit(const LocalizerOptions& options) const;
+  void CheckQuery(const LocalizationQuery& query) const;
+
+  std::shared_ptr<const LocalizationMap> map_;
+  std::shared_ptr<const Network> network_;
+  LocalizerOptions options_;
+  // Observation rows of each database image (nearest-neighbour matcher), CSR layout.
+  std::vector<uint32_t> observation_offsets_;
+  std::vector<uint32_t> observations_by_image_;
+};
+
+}  // namespace hscloc

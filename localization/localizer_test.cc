@@ -1,0 +1,374 @@
+#include "localization/localizer.h"
+
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <iostream>
+#include <map>
+#include <thread>
+
+#include "scene/feature_io.h"
+#include "localization/pose_evaluation.h"
+#include "scene/query_io.h"
+#include "model/trainer.h"
+#include "localization/map_builder.h"
+#include "util/testing.h"
+
+namespace hscloc {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+
+// Queries with their features and ground truth.
+struct QuerySet {
+  std::vector<LocalizationQuery> queries;
+  std::vector<NamedPose> ground_truth;
+};
+
+QuerySet ReadQuerySet(const fs::path& list, const FeatureReader& features,
+                      const fs::path& ground_truth) {
+  QuerySet set;
+  std::unordered_map<std::string, Rigid3d> truth;
+  for (const NamedPose& pose : ReadPoses(ground_truth)) truth[pose.name] = pose.cam_from_world;
+  for (const QueryWithIntrinsics& entry : ReadQueryList(list)) {
+    ImageFeatures image = features.Read(entry.name);
+    set.queries.push_back({entry.name, entry.camera, std::move(image.keypoints),
+                           std::move(image.descriptors), std::nullopt});
+    set.ground_truth.push_back({entry.name, truth.at(entry.name)});
+  }
+  return set;
+}
+
+struct RunSummary {
+  ConditionAccuracy accuracy;
+  std::vector<PoseResult> results;
+  StageTimings mean_timings;
+  double mean_candidates_evaluated = 0;
+};
+
+RunSummary LocalizeAll(const Localizer& localizer, const LocalizerOptions& options,
+                       const QuerySet& set, const std::string& condition) {
+  RunSummary summary;
+  std::vector<NamedPose> estimates;
+  for (const LocalizationQuery& query : set.queries) {
+    PoseResult result = localizer.Localize(query, options);
+    if (result.success) estimates.push_back({query.name, result.cam_from_world});
+    const StageTimings& t = result.timings;
+    summary.mean_timings.retrieval_ms += t.retrieval_ms / set.queries.size();
+    summary.mean_timings.matching_ms += t.matching_ms / set.queries.size();
+    summary.mean_timings.visibility_ms += t.visibility_ms / set.queries.size();
+    summary.mean_timings.pose_ms += t.pose_ms / set.queries.size();
+    summary.mean_timings.total_ms += t.total_ms / set.queries.size();
+    for (const LocalizationCandidate& candidate : result.candidates) {
+      summary.mean_candidates_evaluated += candidate.evaluated / double(set.queries.size());
+    }
+    summary.results.push_back(std::move(result));
+  }
+  summary.accuracy = SummarizeAccuracy(condition, ComputePoseErrors(set.ground_truth, estimates),
+                                       AachenThresholds());
+  return summary;
+}
+
+// Sum of the localized fractions over the three thresholds: one number to order ablations by.
+double Score(const RunSummary& summary) {
+  double score = 0;
+  for (const double fraction : summary.accuracy.localized_fraction) score += fraction;
+  return score;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The trained `small` synthetic city of the test fixture.
+
+class SmallCityLocalizerTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    const auto dir = testing::TrainedSmallCityDir();
+    if (!dir) return;
+    auto map = LocalizationMap::Load(*dir / "map", {.load_observations = true});
+    localizer_ = new Localizer(map, map->network());
+    const auto features = OpenH5Features(*dir / "city" / "features.h5");
+    for (const char* condition : {"day", "night"}) {
+      sets_[condition] = ReadQuerySet(
+          *dir / "city" / "queries" / fmt::format("{}_time_queries_with_intrinsics.txt", condition),
+          *features, *dir / "city" / "queries_gt.txt");
+    }
+  }
+  static void TearDownTestSuite() {
+    delete localizer_;
+    localizer_ = nullptr;
+  }
+  void SetUp() override {
+    if (localizer_ == nullptr) {
+      GTEST_SKIP() << "the trained small city is missing: run the tests through ctest, whose "
+                      "fixture.trained_small_city builds it";
+    }
+  }
+
+  static const Localizer& localizer() { return *localizer_; }
+  static const QuerySet& Set(const std::string& condition) { return sets_.at(condition); }
+
+ private:
+  static Localizer* localizer_;
+  static std::map<std::string, QuerySet> sets_;
+};
+Localizer* SmallCityLocalizerTest::localizer_ = nullptr;
+std::map<std::string, QuerySet> SmallCityLocalizerTest::sets_;
+
+std::string TimingLine(const std::string& name, const RunSummary& run) {
+  const StageTimings& t = run.mean_timings;
+  return fmt::format(
+      "{:<28} retrieval {:6.2f}  matching {:7.2f}  visibility {:5.2f}  pose {:6.2f}  total {:7.2f} "
+      "ms\n",
+      name, t.retrieval_ms, t.matching_ms, t.visibility_ms, t.pose_ms, t.total_ms);
+}
+
+TEST_F(SmallCityLocalizerTest, DayQueriesReachNinetyPercentAndTheBaselineIsReported) {
+  std::vector<ConditionAccuracy> rows;
+  std::string timings;
+  for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
+    LocalizerOptions options;
+    options.matcher = matcher;
+    for (const char* condition : {"day", "night"}) {
+      RunSummary run = LocalizeAll(localizer(), options, Set(condition), condition);
+      run.accuracy.condition = fmt::format("{} {}", MatcherName(matcher), condition);
+      timings += TimingLine(run.accuracy.condition, run);
+      rows.push_back(run.accuracy);
+      if (matcher == Matcher::kNetwork && std::string(condition) == "day") {
+        EXPECT_GE(run.accuracy.localized_fraction[0], 0.9);
+      }
+    }
+  }
+  std::cout << FormatAccuracyTable(rows) << timings;
+  // The baseline must work too, or the comparison says nothing.
+  EXPECT_GE(rows[2].localized_fraction[0], 0.9);
+}
+
+TEST_F(SmallCityLocalizerTest, AblationsMoveInTheExpectedDirection) {
+  LocalizerOptions full;
+  LocalizerOptions top1;
+  top1.top_k = 1;
+  LocalizerOptions no_image_id = top1;
+  no_image_id.use_image_id = false;
+  LocalizerOptions no_filter;
+  no_filter.visibility_filter = false;
+  LocalizerOptions masked;
+  masked.visibility_masked_decoding = true;
+  std::map<std::string, double> scores;
+  std::vector<ConditionAccuracy> rows;
+  for (const auto& [name, options] :
+       std::vector<std::pair<std::string, LocalizerOptions>>{{"top-10, filter", full},
+                                                             {"top-1, filter", top1},
+                                                             {"top-1, no image id", no_image_id},
+                                                             {"top-10, no filter", no_filter},
+                                                             {"top-10, masked decoding", masked}}) {
+    for (const char* condition : {"day", "night"}) {
+      RunSummary run = LocalizeAll(localizer(), options, Set(condition), condition);
+      scores[name] += Score(run);
+      run.accuracy.condition = fmt::format("{}: {}", name, condition);
+      rows.push_back(run.accuracy);
+    }
+  }
+  std::cout << FormatAccuracyTable(rows);
+  EXPECT_GE(scores["top-10, filter"], scores["top-1, filter"]);
+  EXPECT_GE(scores["top-1, filter"], scores["top-1, no image id"]);
+  EXPECT_GE(scores["top-10, filter"], scores["top-10, no filter"]);
+}
+
+TEST_F(SmallCityLocalizerTest, EarlyExitPosesFewerCandidates) {
+  LocalizerOptions early;
+  early.exhaustive = false;
+  early.early_exit_inliers = 30;
+  for (const char* condition : {"day", "night"}) {
+    const RunSummary exhaustive =
+        LocalizeAll(localizer(), LocalizerOptions(), Set(condition), condition);
+    const RunSummary early_exit = LocalizeAll(localizer(), early, Set(condition), condition);
+    std::cout << TimingLine(fmt::format("exhaustive {}", condition), exhaustive)
+              << TimingLine(fmt::format("early exit {}", condition), early_exit)
+              << fmt::format("candidates posed: exhaustive {:.2f}, early exit {:.2f}\n",
+                             exhaustive.mean_candidates_evaluated,
+                             early_exit.mean_candidates_evaluated);
+    EXPECT_LT(early_exit.mean_candidates_evaluated, 0.6 * exhaustive.mean_candidates_evaluated);
+    EXPECT_GE(early_exit.accuracy.localized_fraction[2],
+              exhaustive.accuracy.localized_fraction[2] - 0.1);
+  }
+}
+
+TEST_F(SmallCityLocalizerTest, ConcurrentQueriesGiveTheSequentialResults) {
+  const QuerySet& set = Set("day");
+  const size_t count = std::min<size_t>(set.queries.size(), 24);
+  std::vector<PoseResult> sequential;
+  for (size_t i = 0; i < count; ++i) sequential.push_back(localizer().Localize(set.queries[i]));
+  std::vector<PoseResult> concurrent(count);
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 4; ++t) {
+    threads.emplace_back([&, t] {
+      for (size_t i = t; i < count; i += 4) concurrent[i] = localizer().Localize(set.queries[i]);
+    });
+  }
+  for (std::thread& thread : threads) thread.join();
+  for (size_t i = 0; i < count; ++i) {
+    EXPECT_EQ(concurrent[i].success, sequential[i].success) << i;
+    EXPECT_EQ(concurrent[i].num_inliers, sequential[i].num_inliers) << i;
+    EXPECT_EQ(concurrent[i].cam_from_world.translation, sequential[i].cam_from_world.translation)
+        << i;
+  }
+}
+
+TEST_F(SmallCityLocalizerTest, ResultDescribesTheWinningCandidate) {
+  const PoseResult result = localizer().Localize(Set("day").queries.front());
+  ASSERT_TRUE(result.success) << result.failure_reason;
+  EXPECT_EQ(result.candidates.size(), 10u);
+  ASSERT_GE(result.best_candidate, 0);
+  const LocalizationCandidate& best = result.candidates[result.best_candidate];
+  EXPECT_EQ(result.num_inliers, best.num_inliers);
+  for (const LocalizationCandidate& candidate : result.candidates) {
+    EXPECT_TRUE(candidate.evaluated);
+    EXPECT_LE(candidate.num_inliers, best.num_inliers);
+    EXPECT_LE(candidate.num_inliers, candidate.num_matches);
+    EXPECT_EQ(localizer().map().scene().images[candidate.image_index].image_id, candidate.image_id);
+  }
+  ASSERT_EQ(result.match_keypoints.size(), result.match_points.size());
+  ASSERT_EQ(result.match_inliers.size(), result.match_points.size());
+  EXPECT_EQ(std::count(result.match_inliers.begin(), result.match_inliers.end(), 1),
+            result.num_inliers);
+  // Every kept match survived the visibility filter.
+  for (const uint32_t point : result.match_points) {
+    EXPECT_TRUE(localizer().map().visibility().IsVisible(best.image_index, point));
+  }
+  EXPECT_GT(result.timings.matching_ms, 0);
+  EXPECT_GE(result.timings.total_ms,
+            result.timings.retrieval_ms + result.timings.matching_ms + result.timings.pose_ms);
+}
+
+TEST_F(SmallCityLocalizerTest, MalformedQueriesAreRejectedWithTheirReason) {
+  const LocalizationQuery good = Set("day").queries.front();
+  const auto message = [&](const std::function<void(LocalizationQuery&)>& corrupt) {
+    LocalizationQuery query = good;
+    corrupt(query);
+    return testing::InvalidArgumentMessage([&] { localizer().Localize(query); });
+  };
+  EXPECT_THAT(message([](auto& q) { q.descriptors.conservativeResize(Eigen::NoChange, 128); }),
+              HasSubstr("dimension 128"));
+  EXPECT_THAT(message([](auto& q) { q.descriptors(3, 7) = std::nanf(""); }),
+              HasSubstr("non-finite descriptor"));
+  EXPECT_THAT(message([](auto& q) { q.keypoints(2, 0) = -5; }), HasSubstr("keypoint 2"));
+  EXPECT_THAT(message([](auto& q) { q.keypoints(2, 1) = std::nanf(""); }), HasSubstr("keypoint 2"));
+  EXPECT_THAT(message([](auto& q) { q.keypoints.conservativeResize(10, Eigen::NoChange); }),
+              HasSubstr("10 keypoints but"));
+  EXPECT_THAT(message([](auto& q) { q.camera.params.pop_back(); }), HasSubstr(good.name));
+  EXPECT_THAT(message([](auto& q) { q.global_descriptor = Eigen::VectorXf::Ones(3); }),
+              HasSubstr("global descriptor of dimension 3"));
+  LocalizerOptions bad_options;
+  bad_options.top_k = 0;
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { localizer().Localize(good, bad_options); }),
+              HasSubstr("top_k"));
+
+  // Too few keypoints is a failed localization, not an error; it still carries retrieval's guess.
+  LocalizationQuery empty = good;
+  empty.keypoints.resize(0, 2);
+  empty.descriptors.resize(0, good.descriptors.cols());
+  const PoseResult result = localizer().Localize(empty);
+  EXPECT_FALSE(result.success);
+  EXPECT_THAT(result.failure_reason, HasSubstr("0 keypoints"));
+}
+
+TEST(LocalizationMapTest, LoadsTheNetworkWithTheMapFromOneOpening) {
+  HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
+  const auto map = LocalizationMap::Load(dir / "map");
+  ASSERT_NE(map->network(), nullptr);
+  EXPECT_TRUE(map->network()->HasSameWeights(Network::FromBundle(MapBundle::Open(dir / "map"))));
+  EXPECT_EQ(map->network()->shape().num_images, static_cast<int>(map->scene().NumImages()));
+  EXPECT_EQ(LocalizationMap::Load(dir / "map", {.load_network = false})->network(), nullptr);
+  // The nearest-neighbour baseline needs no network and loads none.
+  const Localizer baseline = Localizer::FromBundle(dir / "map", [] {
+    LocalizerOptions options;
+    options.matcher = Matcher::kNearestNeighbor;
+    return options;
+  }());
+  EXPECT_EQ(baseline.network(), nullptr);
+}
+
+TEST(LocalizerTest, MatcherNamesRoundTrip) {
+  EXPECT_EQ(ParseMatcher(MatcherName(Matcher::kNetwork)), Matcher::kNetwork);
+  EXPECT_EQ(ParseMatcher(MatcherName(Matcher::kNearestNeighbor)), Matcher::kNearestNeighbor);
+  EXPECT_THAT(testing::InvalidArgumentMessage([] { ParseMatcher("sift"); }), HasSubstr("'sift'"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Real photographs: a map built from the set's COLMAP model and database.db SIFT features, a
+// network trained on it, and the held-out queries localized from their database.db features.
+
+// Localizes the set's queries with the network and with the nearest-neighbour baseline, prints
+// every error beside COLMAP's image_registrator, and returns, per matcher, how many queries came
+// within (0.25 m, 2 deg).
+std::map<Matcher, int> LocalizeRealSet(
+    const fs::path& data, int64_t iterations,
+    const std::vector<std::pair<std::string, double>>& colmap_position_errors) {
+  testing::TempDir temp;
+  MapBuildOptions build_options;
+  build_options.show_progress = false;
+  build_options.label_tree.show_progress = false;
+  BuildMap({data / "map", data / "database.db", std::nullopt}, build_options, temp / "map");
+  auto map = LocalizationMap::Load(temp / "map", {.load_observations = true});
+  TrainerOptions train_options;
+  train_options.max_iterations = iterations;
+  train_options.holdout_fraction = 0;
+  train_options.show_progress = false;
+  TrainingResult training = TrainNetwork(map->scene(), map->label_tree(), train_options);
+  const auto network = std::make_shared<const Network>(std::move(training.network));
+  const Localizer localizer(map, network);
+  const auto features = OpenColmapDatabaseFeatures(data / "database.db");
+  const QuerySet set =
+      ReadQuerySet(data / "queries_with_intrinsics.txt", *features, data / "queries_gt.txt");
+  std::cout << fmt::format("{}: {} images, {} points, {} observations; {} iterations in {:.1f} s\n",
+                           data.filename().string(), map->scene().NumImages(),
+                           map->scene().NumPoints(), map->scene().NumObservations(),
+                           training.iterations, training.seconds);
+  std::map<Matcher, int> within;
+  for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
+    LocalizerOptions options;
+    options.matcher = matcher;
+    const RunSummary run = LocalizeAll(localizer, options, set, MatcherName(matcher));
+    EXPECT_EQ(set.queries.size(), colmap_position_errors.size());
+    for (size_t i = 0; i < set.queries.size(); ++i) {
+      const QueryPoseError& error = run.accuracy.errors[i];
+      std::cout << fmt::format(
+          "  {:<4} {:<9} position error {:8.4f}  rotation error {:7.3f} deg  inliers {:4}  "
+          "(COLMAP image_registrator: {:.4f})\n",
+          MatcherName(matcher), set.queries[i].name, error.position, error.rotation_deg,
+          run.results[i].num_inliers, colmap_position_errors[i].second);
+      EXPECT_EQ(set.queries[i].name, colmap_position_errors[i].first);
+      within[matcher] += error.position <= 0.25 && error.rotation_deg <= 2.0;
+    }
+  }
+  return within;
+}
+
+TEST(RealDataLocalizerTest, FountainQueriesWithinQuarterMetreAndTwoDegrees) {
+  HSCLOC_REQUIRE_REAL_DATA(data, "fountain-P11");
+  std::map<Matcher, int> within =
+      LocalizeRealSet(data, 600, {{"0003.jpg", 0.0025}, {"0007.jpg", 0.0016}});
+  EXPECT_EQ(within[Matcher::kNetwork], 2);
+  EXPECT_EQ(within[Matcher::kNearestNeighbor], 2);
+}
+
+// Lund's map has 3.2 observations per point, and its SfM pseudo ground truth is folded between
+// 15.jpg and 16.jpg (see the set's README). The network localizes all 5 queries within
+// (0.25 m, 2 deg) here, 25.jpg at 0.24 m, where COLMAP's own registration is 0.19 m and nearest
+// neighbour 0.32 m from the pseudo ground truth; the check leaves that one query its slack.
+TEST(RealDataLocalizerTest, LundQueriesAgainstColmap) {
+  HSCLOC_REQUIRE_REAL_DATA(data, "lund");
+  std::map<Matcher, int> within = LocalizeRealSet(data, 400,
+                                                  {{"05.jpg", 0.0408},
+                                                   {"10.jpg", 0.0162},
+                                                   {"15.jpg", 0.0137},
+                                                   {"20.jpg", 0.0532},
+                                                   {"25.jpg", 0.1947}});
+  EXPECT_GE(within[Matcher::kNetwork], 4);
+  EXPECT_GE(within[Matcher::kNearestNeighbor], 4);
+}
+
+}  // namespace
+}  // namespace hscloc

@@ -1,0 +1,210 @@
+#include "localization/map_builder.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+
+#include "scene/colmap_io.h"
+#include "map/map_bundle.h"
+#include "scene/scene.h"
+#include "scene/scene_io.h"
+#include "map/visibility.h"
+#include "localization/localization_map.h"
+#include "util/check.h"
+#include "util/parallel.h"
+#include "util/progress_bar.h"
+#include "util/timer.h"
+
+namespace hscloc {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Images encoded per parallel batch; feature readers (SQLite, HDF5) are read from one thread.
+constexpr size_t kVladBatchSize = 64;
+
+std::string IndexTypeName(GlobalIndexOptions::Type type) {
+  return type == GlobalIndexOptions::Type::kFlat ? "flat" : "ivfpq";
+}
+
+GlobalDescriptorMatrix ExternalGlobalDescriptors(const Scene& scene, const fs::path& path) {
+  const auto by_name = ReadH5GlobalDescriptors(path);
+  GlobalDescriptorMatrix descriptors;
+  for (size_t i = 0; i < scene.NumImages(); ++i) {
+    const std::string& name = scene.images[i].name;
+    const auto found = by_name.find(name);
+    if (found == by_name.end()) {
+      ThrowInvalidArgument("global descriptors {}: no descriptor for database image '{}'",
+                           path.string(), name);
+    }
+    if (i == 0) descriptors.resize(scene.NumImages(), found->second.size());
+    if (found->second.size() != descriptors.cols()) {
+      ThrowInvalidArgument("global descriptors {}: image '{}' has dimension {}, others {}",
+                           path.string(), name, found->second.size(), descriptors.cols());
+    }
+    const float norm = found->second.norm();
+    if (!(norm > 0)) {
+      ThrowInvalidArgument("global descriptors {}: image '{}' has a zero or non-finite descriptor",
+                           path.string(), name);
+    }
+    descriptors.row(i) = found->second.transpose() / norm;
+  }
+  return descriptors;
+}
+
+VladEncoder TrainVlad(const Scene& scene, const FeatureReader& features,
+                      const MapBuildOptions& options) {
+  const size_t num_images = scene.NumImages();
+  const size_t num_training = std::min<size_t>(num_images, options.max_vlad_training_images);
+  std::vector<DescriptorMatrix> training;
+  training.reserve(num_training);
+  // Evenly spaced images cover the whole map rather than its first streets.
+  for (size_t t = 0; t < num_training; ++t) {
+    training.push_back(features.Read(scene.images[t * num_images / num_training].name).descriptors);
+  }
+  return VladEncoder::Train(training, options.vlad);
+}
+
+GlobalDescriptorMatrix EncodeDatabase(const Scene& scene, const FeatureReader& features,
+                                      const VladEncoder& vlad, const MapBuildOptions& options) {
+  const size_t num_images = scene.NumImages();
+  GlobalDescriptorMatrix descriptors(num_images, vlad.output_dim());
+  ProgressBar progress(
+      "vlad", num_images,
+      options.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
+  std::vector<DescriptorMatrix> batch;
+  for (size_t begin = 0; begin < num_images; begin += kVladBatchSize) {
+    const size_t end = std::min(num_images, begin + kVladBatchSize);
+    batch.clear();
+    for (size_t i = begin; i < end; ++i) {
+      batch.push_back(features.Read(scene.images[i].name).descriptors);
+    }
+    ParallelFor(end - begin, options.vlad.num_threads, [&](size_t lo, size_t hi) {
+      for (size_t i = lo; i < hi; ++i) {
+        descriptors.row(begin + i) = vlad.Encode(batch[i]).transpose();
+      }
+    });
+    progress.Advance(end - begin);
+  }
+  return descriptors;
+}
+
+uint64_t DirectoryBytes(const fs::path& dir) {
+  uint64_t bytes = 0;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    if (entry.is_regular_file()) bytes += entry.file_size();
+  }
+  return bytes;
+}
+
+}  // namespace
+
+void MapBuildOptions::Check() const {
+  label_tree.Check();
+  vlad.Check();
+  global_index.Check();
+  join.Check();
+  THROW_CHECK_MSG(max_vlad_training_images >= 1, "max_vlad_training_images must be >= 1 (got {})",
+                  max_vlad_training_images);
+}
+
+MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& options,
+                         const fs::path& bundle_dir) {
+  options.Check();
+  Timer total;
+  MapBuildSummary summary;
+
+  Timer stage;
+  const Reconstruction reconstruction = ReadColmapModel(inputs.model_dir);
+  THROW_CHECK_MSG(!reconstruction.images.empty() && !reconstruction.points3D.empty(),
+                  "COLMAP model {} has {} images and {} points; a map needs both",
+                  inputs.model_dir.string(), reconstruction.images.size(),
+                  reconstruction.points3D.size());
+  const std::unique_ptr<FeatureReader> features = OpenFeatureReader(inputs.features);
+  const Scene scene = Scene::FromReconstruction(
+      reconstruction, JoinObservations(reconstruction, *features, options.join));
+  summary.seconds_join = stage.ElapsedSeconds();
+  spdlog::info("scene: {} images, {} points, {} observations of dimension {} ({:.1f} s)",
+               scene.NumImages(), scene.NumPoints(), scene.NumObservations(), scene.Dimension(),
+               summary.seconds_join);
+
+  stage.Restart();
+  LabelTreeOptions tree_options = options.label_tree;
+  tree_options.show_progress = options.show_progress;
+  const LabelTree tree = LabelTree::Build(scene.points, tree_options);
+  const Visibility visibility = Visibility::FromObservations(scene.NumImages(), scene.NumPoints(),
+                                                             scene.observation_image_indices,
+                                                             scene.observation_point_indices);
+  summary.seconds_label_tree = stage.ElapsedSeconds();
+  spdlog::info("label tree: {} levels, branching {}, {} nodes ({:.1f} s)", tree.levels(),
+               tree.branching(), tree.NumNodes(), summary.seconds_label_tree);
+
+  stage.Restart();
+  std::optional<VladEncoder> vlad;
+  GlobalDescriptorMatrix global_descriptors;
+  if (inputs.global_features) {
+    global_descriptors = ExternalGlobalDescriptors(scene, *inputs.global_features);
+  } else {
+    vlad = TrainVlad(scene, *features, options);
+    global_descriptors = EncodeDatabase(scene, *features, *vlad, options);
+  }
+  const GlobalIndex index = GlobalIndex::Build(global_descriptors, options.global_index);
+  summary.seconds_retrieval = stage.ElapsedSeconds();
+  spdlog::info("retrieval: {} global descriptors of dimension {} ({:.1f} s)",
+               global_descriptors.rows(), global_descriptors.cols(), summary.seconds_retrieval);
+
+  stage.Restart();
+  MapBundleWriter writer(bundle_dir);
+  writer.AddBlob(map_blobs::kScene, [&](std::ostream& s) { WriteSceneGeometry(s, scene); });
+  writer.AddBlob(map_blobs::kObservations,
+                 [&](std::ostream& s) { WriteSceneObservations(s, scene); });
+  writer.AddBlob(map_blobs::kLabelTree, [&](std::ostream& s) { tree.Write(s); });
+  writer.AddBlob(map_blobs::kVisibility, [&](std::ostream& s) { visibility.Write(s); });
+  if (vlad) writer.AddBlob(map_blobs::kVlad, [&](std::ostream& s) { vlad->Write(s); });
+  writer.AddBlob(map_blobs::kGlobalDescriptors,
+                 [&](std::ostream& s) { WriteGlobalDescriptors(s, global_descriptors); });
+  writer.AddBlob(map_blobs::kGlobalIndex, [&](std::ostream& s) { index.Write(s); });
+
+  nlohmann::json& metadata = writer.metadata();
+  metadata["descriptor_dim"] = scene.Dimension();
+  metadata["num_images"] = scene.NumImages();
+  metadata["num_points"] = scene.NumPoints();
+  metadata["num_observations"] = scene.NumObservations();
+  metadata["num_cameras"] = scene.cameras.size();
+  metadata["label_tree"] = {{"levels", tree.levels()},
+                            {"branching", tree.branching()},
+                            {"num_nodes", tree.NumNodes()},
+                            {"kmeans_iterations", options.label_tree.kmeans_iterations},
+                            {"seed", options.label_tree.seed}};
+  nlohmann::json retrieval = {{"global_descriptor", vlad ? "vlad" : "external"},
+                              {"global_descriptor_dim", global_descriptors.cols()},
+                              {"index", IndexTypeName(options.global_index.type)}};
+  if (vlad) {
+    retrieval["vlad"] = {
+        {"num_words", options.vlad.num_words},
+        {"whitened_dim", options.vlad.whitened_dim},
+        {"power_normalization", options.vlad.power_normalization},
+        {"training_images", std::min<size_t>(scene.NumImages(), options.max_vlad_training_images)},
+        {"seed", options.vlad.seed}};
+  }
+  metadata["retrieval"] = retrieval;
+  metadata["sources"] = {{"model", fs::absolute(inputs.model_dir).string()},
+                         {"features", fs::absolute(inputs.features).string()}};
+  if (inputs.global_features) {
+    metadata["sources"]["global_features"] = fs::absolute(*inputs.global_features).string();
+  }
+  writer.Commit();
+  summary.seconds_write = stage.ElapsedSeconds();
+
+  summary.num_images = scene.NumImages();
+  summary.num_points = scene.NumPoints();
+  summary.num_observations = scene.NumObservations();
+  summary.descriptor_dim = static_cast<int>(scene.Dimension());
+  summary.global_descriptor_dim = static_cast<int>(global_descriptors.cols());
+  summary.num_tree_nodes = tree.NumNodes();
+  summary.bundle_bytes = DirectoryBytes(bundle_dir);
+  summary.seconds_total = total.ElapsedSeconds();
+  return summary;
+}
+
+}  // namespace hscloc

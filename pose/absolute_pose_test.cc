@@ -1,0 +1,358 @@
+#include "pose/absolute_pose.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <stdexcept>
+#include <thread>
+#include <utility>
+
+#include "util/random.h"
+
+namespace hscloc {
+namespace {
+
+using ::testing::HasSubstr;
+using Solver = AbsolutePoseOptions::Solver;
+
+MATCHER_P3(PoseNear, expected, max_position_error_m, max_rotation_error_deg, "") {
+  const double position_error = PositionError(arg, expected);
+  const double rotation_error = RotationErrorDeg(arg, expected);
+  *result_listener << "camera centre off by " << position_error << " m (at most "
+                   << max_position_error_m << "), rotation off by " << rotation_error
+                   << " deg (at most " << max_rotation_error_deg << ")";
+  return position_error <= max_position_error_m && rotation_error <= max_rotation_error_deg;
+}
+
+// A random camera of the model with moderate distortion that CamFromImg inverts on the whole
+// image.
+Camera RandomCamera(const std::string& model_name, Random& random) {
+  const double f = random.Uniform(800, 1400);
+  const double fy = f * random.Uniform(0.97, 1.03);
+  const double cx = 512 + random.Uniform(-20, 20);
+  const double cy = 384 + random.Uniform(-20, 20);
+  std::vector<double> params;
+  if (model_name == "SIMPLE_PINHOLE") {
+    params = {f, cx, cy};
+  } else if (model_name == "PINHOLE") {
+    params = {f, fy, cx, cy};
+  } else if (model_name == "SIMPLE_RADIAL") {
+    params = {f, cx, cy, random.Uniform(-0.15, 0.15)};
+  } else if (model_name == "RADIAL") {
+    params = {f, cx, cy, random.Uniform(-0.1, 0.1), random.Uniform(0.0, 0.02)};
+  } else if (model_name == "OPENCV") {
+    params = {f,
+              fy,
+              cx,
+              cy,
+              random.Uniform(-0.15, 0.1),
+              random.Uniform(0.0, 0.03),
+              random.Uniform(-1e-3, 1e-3),
+              random.Uniform(-1e-3, 1e-3)};
+  } else if (model_name == "OPENCV_FISHEYE") {
+    params = {f / 2, fy / 2, cx, cy, random.Uniform(-0.05, 0.05), random.Uniform(-0.01, 0.01),
+              0.0,   0.0};
+  }
+  return Camera::FromModelName(1, model_name, 1024, 768, params);
+}
+
+struct Correspondences {
+  Camera camera;
+  Rigid3d cam_from_world;
+  std::vector<Eigen::Vector2d> keypoints_px;
+  std::vector<Eigen::Vector3d> points_in_world;
+};
+
+// Inliers: a point 2 to 30 m away along the ray of a random pixel, its keypoint that pixel plus
+// Gaussian noise. Outliers are wrong matches: a keypoint paired with the point of another pixel.
+Correspondences MakeCorrespondences(const Camera& camera, int num_inliers, int num_outliers,
+                                    double noise_px, Random& random) {
+  Correspondences data;
+  data.camera = camera;
+  data.cam_from_world =
+      Rigid3d(Eigen::Quaterniond(random.Normal(), random.Normal(), random.Normal(), random.Normal())
+                  .normalized(),
+              Eigen::Vector3d(random.Normal(0, 20), random.Normal(0, 20), random.Normal(0, 20)));
+  const Rigid3d world_from_cam = data.cam_from_world.Inverse();
+  auto random_ray = [&](Eigen::Vector2d* pixel) {
+    while (true) {
+      *pixel = Eigen::Vector2d(random.Uniform(0, camera.width), random.Uniform(0, camera.height));
+      const Eigen::Vector2d normalized = camera.CamFromImg(*pixel);
+      if (normalized.allFinite()) return normalized;
+    }
+  };
+  for (int i = 0; i < num_inliers + num_outliers; ++i) {
+    Eigen::Vector2d pixel;
+    const Eigen::Vector2d normalized = random_ray(&pixel);
+    data.points_in_world.push_back(world_from_cam *
+                                   (random.Uniform(2, 30) * normalized.homogeneous()));
+    if (i < num_inliers) {
+      data.keypoints_px.push_back(pixel +
+                                  noise_px * Eigen::Vector2d(random.Normal(), random.Normal()));
+    } else {
+      random_ray(&pixel);
+      data.keypoints_px.push_back(pixel);
+    }
+  }
+  for (int i = static_cast<int>(data.keypoints_px.size()) - 1; i > 0; --i) {
+    const int j = static_cast<int>(random.UniformInt(i + 1));
+    std::swap(data.keypoints_px[i], data.keypoints_px[j]);
+    std::swap(data.points_in_world[i], data.points_in_world[j]);
+  }
+  return data;
+}
+
+AbsolutePoseResult Estimate(const Correspondences& data, const AbsolutePoseOptions& options) {
+  return EstimateAbsolutePose(data.camera, data.keypoints_px, data.points_in_world, options);
+}
+
+AbsolutePoseOptions OptionsFor(Solver solver) {
+  AbsolutePoseOptions options;
+  options.solver = solver;
+  return options;
+}
+
+std::string SolverName(Solver solver) {
+  return solver == Solver::kLoRansac ? "LO-RANSAC" : "OpenCV USAC";
+}
+
+struct AccuracyCase {
+  double noise_px;
+  double outlier_ratio;
+  double max_position_error_m;
+  double max_rotation_error_deg;
+};
+
+class AbsolutePoseModelTest : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(AbsolutePoseModelTest, RecoversKnownPosesUnderNoiseAndOutliers) {
+  // Without noise and outliers the pose is exact. A wrong match that lands within the threshold
+  // by chance (1 in 2500 here) keeps a few percent of its weight under the Cauchy loss, so with
+  // outliers even noise-free data gives a pose off by up to 0.1 mm.
+  const AccuracyCase cases[] = {{0.0, 0.0, 1e-6, 1e-5}, {0.0, 0.5, 1e-3, 1e-2},
+                                {0.5, 0.5, 0.01, 0.05}, {1.0, 0.8, 0.02, 0.1},
+                                {2.0, 0.0, 0.02, 0.1},  {2.0, 0.8, 0.05, 0.25}};
+  uint64_t seed = 100;
+  for (const char c : GetParam()) seed = seed * 31 + c;
+  Random random(seed);
+  for (const Solver solver : {Solver::kLoRansac, Solver::kOpenCvUsac}) {
+    for (const AccuracyCase& test_case : cases) {
+      const Camera camera = RandomCamera(GetParam(), random);
+      const int num_inliers = 200;
+      const int num_outliers =
+          static_cast<int>(num_inliers * test_case.outlier_ratio / (1.0 - test_case.outlier_ratio));
+      const Correspondences data =
+          MakeCorrespondences(camera, num_inliers, num_outliers, test_case.noise_px, random);
+      const AbsolutePoseResult result = Estimate(data, OptionsFor(solver));
+      const std::string label = SolverName(solver) + ", noise " +
+                                std::to_string(test_case.noise_px) + " px, outliers " +
+                                std::to_string(test_case.outlier_ratio);
+      ASSERT_TRUE(result.success) << label << ": " << result.failure_reason;
+      EXPECT_THAT(result.cam_from_world,
+                  PoseNear(data.cam_from_world, test_case.max_position_error_m,
+                           test_case.max_rotation_error_deg))
+          << label;
+      EXPECT_GE(result.num_inliers, num_inliers * 9 / 10) << label;
+      EXPECT_LE(result.num_inliers, num_inliers + num_outliers / 50) << label;
+      EXPECT_EQ(std::count(result.inlier_mask.begin(), result.inlier_mask.end(), 1),
+                result.num_inliers)
+          << label;
+    }
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(CameraModels, AbsolutePoseModelTest,
+                         ::testing::Values("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL",
+                                           "OPENCV", "OPENCV_FISHEYE"),
+                         [](const auto& info) { return info.param; });
+
+// The paper's hardest regime: 100 correct matches among 1000.
+TEST(AbsolutePose, SucceedsWithNinetyPercentOutliers) {
+  Random random(7);
+  for (const Solver solver : {Solver::kLoRansac, Solver::kOpenCvUsac}) {
+    for (const char* model : {"SIMPLE_RADIAL", "OPENCV"}) {
+      const Correspondences data =
+          MakeCorrespondences(RandomCamera(model, random), 100, 900, 1.0, random);
+      const AbsolutePoseResult result = Estimate(data, OptionsFor(solver));
+      ASSERT_TRUE(result.success) << SolverName(solver) << ", " << model << ": "
+                                  << result.failure_reason;
+      EXPECT_THAT(result.cam_from_world, PoseNear(data.cam_from_world, 0.05, 0.25))
+          << SolverName(solver) << ", " << model;
+      EXPECT_GE(result.num_inliers, 90) << SolverName(solver) << ", " << model;
+    }
+  }
+}
+
+TEST(AbsolutePose, EarlyStopEndsSamplingWhenInliersArePlentiful) {
+  Random random(8);
+  const Correspondences data =
+      MakeCorrespondences(RandomCamera("SIMPLE_RADIAL", random), 400, 600, 1.0, random);
+  AbsolutePoseOptions options;
+  // Confidence 1 disables the adaptive bound, so only the early stop can end sampling.
+  options.confidence = 1.0;
+  const AbsolutePoseResult early = Estimate(data, options);
+  ASSERT_TRUE(early.success) << early.failure_reason;
+  // An all-inlier sample takes 1 / 0.4^3 = 16 draws on average.
+  EXPECT_LT(early.num_iterations, 200);
+  EXPECT_THAT(early.cam_from_world, PoseNear(data.cam_from_world, 0.02, 0.1));
+
+  options.early_stop_inliers = 0;
+  const AbsolutePoseResult full = Estimate(data, options);
+  ASSERT_TRUE(full.success) << full.failure_reason;
+  EXPECT_EQ(full.num_iterations, options.max_iterations);
+}
+
+TEST(AbsolutePose, AdaptiveBoundEndsSamplingWithoutOutliers) {
+  Random random(9);
+  const Correspondences data =
+      MakeCorrespondences(RandomCamera("PINHOLE", random), 50, 0, 0.5, random);
+  AbsolutePoseOptions options;
+  options.early_stop_inliers = 0;
+  const AbsolutePoseResult result = Estimate(data, options);
+  ASSERT_TRUE(result.success) << result.failure_reason;
+  EXPECT_LT(result.num_iterations, 20);
+}
+
+double Mean(const std::vector<double>& values) {
+  double sum = 0.0;
+  for (const double value : values) sum += value;
+  return sum / values.size();
+}
+
+// The minimal-solver pose fits three noisy points exactly; refitting all inliers averages the
+// noise out.
+TEST(AbsolutePose, RefinementImprovesOnTheMinimalSolverPose) {
+  Random random(10);
+  AbsolutePoseOptions minimal_options;
+  minimal_options.local_optimization = false;
+  minimal_options.refine = false;
+  AbsolutePoseOptions refined_options = minimal_options;
+  refined_options.refine = true;
+  std::vector<double> minimal_rotation, minimal_position, refined_rotation, refined_position;
+  for (int trial = 0; trial < 20; ++trial) {
+    const Correspondences data =
+        MakeCorrespondences(RandomCamera("OPENCV", random), 150, 150, 2.0, random);
+    const AbsolutePoseResult minimal = Estimate(data, minimal_options);
+    const AbsolutePoseResult refined = Estimate(data, refined_options);
+    ASSERT_TRUE(minimal.success) << minimal.failure_reason;
+    ASSERT_TRUE(refined.success) << refined.failure_reason;
+    EXPECT_FALSE(minimal.refined);
+    EXPECT_TRUE(refined.refined);
+    minimal_rotation.push_back(RotationErrorDeg(minimal.cam_from_world, data.cam_from_world));
+    minimal_position.push_back(PositionError(minimal.cam_from_world, data.cam_from_world));
+    refined_rotation.push_back(RotationErrorDeg(refined.cam_from_world, data.cam_from_world));
+    refined_position.push_back(PositionError(refined.cam_from_world, data.cam_from_world));
+  }
+  EXPECT_LT(Mean(refined_rotation), 0.25 * Mean(minimal_rotation));
+  EXPECT_LT(Mean(refined_position), 0.25 * Mean(minimal_position));
+}
+
+TEST(AbsolutePose, FailsWithAReasonOnTooFewCorrespondences) {
+  Random random(11);
+  const Correspondences data =
+      MakeCorrespondences(RandomCamera("PINHOLE", random), 8, 0, 0.0, random);
+  const AbsolutePoseResult result = Estimate(data, AbsolutePoseOptions());
+  EXPECT_FALSE(result.success);
+  EXPECT_THAT(result.failure_reason, HasSubstr("fewer than min_inliers"));
+  EXPECT_EQ(result.inlier_mask.size(), 8u);
+}
+
+TEST(AbsolutePose, FailsWithAReasonWhenEverythingIsAnOutlier) {
+  Random random(12);
+  for (const Solver solver : {Solver::kLoRansac, Solver::kOpenCvUsac}) {
+    const Correspondences data =
+        MakeCorrespondences(RandomCamera("SIMPLE_RADIAL", random), 0, 300, 0.0, random);
+    const AbsolutePoseResult result = Estimate(data, OptionsFor(solver));
+    EXPECT_FALSE(result.success) << SolverName(solver);
+    EXPECT_FALSE(result.failure_reason.empty()) << SolverName(solver);
+  }
+}
+
+TEST(AbsolutePose, FailsWithAReasonOnDegenerateGeometry) {
+  Random random(13);
+  Correspondences data = MakeCorrespondences(RandomCamera("PINHOLE", random), 50, 0, 0.0, random);
+  // Every 3D point on one line: no minimal sample determines a pose.
+  for (size_t i = 0; i < data.points_in_world.size(); ++i) {
+    data.points_in_world[i] = Eigen::Vector3d(1.0, 2.0, 3.0) * static_cast<double>(i + 1);
+  }
+  const AbsolutePoseResult result = Estimate(data, AbsolutePoseOptions());
+  EXPECT_FALSE(result.success);
+  EXPECT_THAT(result.failure_reason, HasSubstr("no hypothesis"));
+}
+
+TEST(AbsolutePose, BadInputThrowsNamingTheField) {
+  Random random(14);
+  Correspondences data = MakeCorrespondences(RandomCamera("PINHOLE", random), 20, 0, 0.0, random);
+  const auto throws_naming = [](const std::string& field) {
+    return ::testing::ThrowsMessage<std::invalid_argument>(HasSubstr(field));
+  };
+  Correspondences mismatched = data;
+  mismatched.points_in_world.pop_back();
+  EXPECT_THAT([&] { Estimate(mismatched, AbsolutePoseOptions()); },
+              throws_naming("points_in_world"));
+  Correspondences non_finite = data;
+  non_finite.keypoints_px[3].y() = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THAT([&] { Estimate(non_finite, AbsolutePoseOptions()); },
+              throws_naming("keypoints_px[3]"));
+  non_finite = data;
+  non_finite.points_in_world[5].x() = std::numeric_limits<double>::infinity();
+  EXPECT_THAT([&] { Estimate(non_finite, AbsolutePoseOptions()); },
+              throws_naming("points_in_world[5]"));
+  Correspondences bad_camera = data;
+  bad_camera.camera.params.pop_back();
+  EXPECT_THAT([&] { Estimate(bad_camera, AbsolutePoseOptions()); }, throws_naming("params"));
+
+  const std::vector<std::pair<std::string, void (*)(AbsolutePoseOptions&)>> bad_options = {
+      {"max_reprojection_error_px",
+       [](AbsolutePoseOptions& o) { o.max_reprojection_error_px = 0; }},
+      {"max_iterations", [](AbsolutePoseOptions& o) { o.max_iterations = 0; }},
+      {"early_stop_inliers", [](AbsolutePoseOptions& o) { o.early_stop_inliers = -1; }},
+      {"confidence", [](AbsolutePoseOptions& o) { o.confidence = 1.5; }},
+      {"min_inliers", [](AbsolutePoseOptions& o) { o.min_inliers = 3; }},
+      {"solver", [](AbsolutePoseOptions& o) { o.solver = static_cast<Solver>(7); }},
+      {"loss_scale_px", [](AbsolutePoseOptions& o) { o.refinement.loss_scale_px = -1; }},
+  };
+  for (const auto& [field, make_bad] : bad_options) {
+    AbsolutePoseOptions options;
+    make_bad(options);
+    EXPECT_THAT([&] { Estimate(data, options); }, throws_naming(field));
+  }
+}
+
+bool SameResult(const AbsolutePoseResult& a, const AbsolutePoseResult& b) {
+  return a.success == b.success && a.inlier_mask == b.inlier_mask &&
+         a.num_iterations == b.num_iterations &&
+         a.cam_from_world.rotation.coeffs() == b.cam_from_world.rotation.coeffs() &&
+         a.cam_from_world.translation == b.cam_from_world.translation;
+}
+
+// Concurrent calls give exactly the results of sequential ones with the same seeds.
+TEST(AbsolutePose, DeterministicAndThreadSafe) {
+  Random random(15);
+  std::vector<Correspondences> queries;
+  for (int i = 0; i < 8; ++i) {
+    queries.push_back(MakeCorrespondences(RandomCamera("OPENCV", random), 150, 350, 1.0, random));
+  }
+  for (const Solver solver : {Solver::kLoRansac, Solver::kOpenCvUsac}) {
+    AbsolutePoseOptions options = OptionsFor(solver);
+    options.seed = 42;
+    std::vector<AbsolutePoseResult> sequential;
+    for (const Correspondences& query : queries) sequential.push_back(Estimate(query, options));
+    std::vector<AbsolutePoseResult> concurrent(queries.size());
+    std::vector<std::thread> threads;
+    for (size_t i = 0; i < queries.size(); ++i) {
+      threads.emplace_back([&, i] { concurrent[i] = Estimate(queries[i], options); });
+    }
+    for (std::thread& thread : threads) thread.join();
+    for (size_t i = 0; i < queries.size(); ++i) {
+      EXPECT_TRUE(sequential[i].success) << SolverName(solver) << ", query " << i;
+      EXPECT_TRUE(SameResult(sequential[i], concurrent[i]))
+          << SolverName(solver) << ", query " << i;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace hscloc

@@ -1,0 +1,100 @@
+// The LO-RANSAC loop (Chum et al., DAGM 2003) over any estimator with PoseLib's interface
+// (ransac.h there): NumData(), FitMinimal(sample), Evaluate(model, to_beat), LocalOptimize(best),
+// OnNewBest(score) and RightPoseAcceptance(). The estimator owns the data and the scoring; this
+// loop owns the sampling, the adaptive iteration bound and the early stop on an inlier count.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+
+#include "util/random.h"
+
+namespace hscloc {
+
+// MSAC (Torr and Zisserman, CVIU 2000): sum of min(e^2, threshold^2); lower is better. It ranks
+// hypotheses with equal inlier counts by how well they fit them.
+struct Score {
+  double msac = std::numeric_limits<double>::infinity();
+  int num_inliers = 0;
+  bool IsBetterThan(const Score& other) const { return msac < other.msac; }
+};
+
+template <typename Model>
+struct ScoredModel {
+  Model model;
+  Score score;
+};
+
+struct RansacOptions {
+  int max_iterations = 0;
+  // Stop sampling once the best hypothesis has more than this many inliers; 0 disables.
+  int stop_past_inliers = 0;
+  double confidence = 0.0;
+  bool local_optimization = false;
+};
+
+template <typename Model>
+struct RansacOutcome {
+  bool found = false;
+  ScoredModel<Model> best;
+  int num_iterations = 0;
+};
+
+// Samples needed to draw and accept one all-inlier sample with the given confidence (Fischler and
+// Bolles, with the acceptance of the verification as in Chum and Matas).
+inline int RequiredIterations(double good_sample_probability, double confidence, int max_iterations) {
+  if (good_sample_probability >= 1.0) return 0;
+  if (confidence >= 1.0 || good_sample_probability <= 0.0) return max_iterations;
+  const double required = std::log1p(-confidence) / std::log1p(-good_sample_probability);
+  return required < max_iterations ? static_cast<int>(std::ceil(required)) : max_iterations;
+}
+
+template <int kSampleSize>
+std::array<int, kSampleSize> DrawSample(int num_data, Random& random) {
+  std::array<int, kSampleSize> sample;
+  for (int i = 0; i < kSampleSize; ++i) {
+    bool repeated;
+    do {
+      sample[i] = static_cast<int>(random.UniformInt(num_data));
+      repeated = std::find(sample.begin(), sample.begin() + i, sample[i]) != sample.begin() + i;
+    } while (repeated);
+  }
+  return sample;
+}
+
+// The LO-RANSAC loop, with the estimator interface of PoseLib's ransac.h: sample, fit, score,
+// locally optimize the best.
+template <typename Estimator>
+RansacOutcome<typename Estimator::Model> RunLoRansac(Estimator& estimator,
+                                                     const RansacOptions& options, Random& random) {
+  RansacOutcome<typename Estimator::Model> outcome;
+  const int num_data = estimator.NumData();
+  if (num_data < Estimator::kSampleSize) return outcome;
+  int iteration_bound = options.max_iterations;
+  while (outcome.num_iterations < iteration_bound) {
+    ++outcome.num_iterations;
+    const auto sample = DrawSample<Estimator::kSampleSize>(num_data, random);
+    const auto models = estimator.FitMinimal(sample);
+    for (int i = 0; i < models.num_solutions; ++i) {
+      const Score score = estimator.Evaluate(models.cam_from_world[i], outcome.best.score);
+      if (!score.IsBetterThan(outcome.best.score)) continue;
+      outcome.found = true;
+      outcome.best = {models.cam_from_world[i], score};
+      if (options.local_optimization) outcome.best = estimator.LocalOptimize(outcome.best);
+      estimator.OnNewBest(outcome.best.score);
+      const double inlier_ratio = static_cast<double>(outcome.best.score.num_inliers) / num_data;
+      iteration_bound = RequiredIterations(
+          std::pow(inlier_ratio, Estimator::kSampleSize) * estimator.RightPoseAcceptance(),
+          options.confidence, options.max_iterations);
+    }
+    if (options.stop_past_inliers > 0 &&
+        outcome.best.score.num_inliers > options.stop_past_inliers) {
+      break;
+    }
+  }
+  return outcome;
+}
+
+}  // namespace hscloc

@@ -1,0 +1,104 @@
+#include "scene/feature_io.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+
+#include "util/check.h"
+
+namespace hscloc {
+
+std::unique_ptr<FeatureReader> OpenFeatureReader(const std::filesystem::path& path) {
+  std::string extension = path.extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  if (extension == ".db") return OpenColmapDatabaseFeatures(path);
+  if (extension == ".h5" || extension == ".hdf5") return OpenH5Features(path);
+  ThrowInvalidArgument(
+      "feature file {}: unknown extension '{}'; accepted: .db (COLMAP database), .h5 or .hdf5 "
+      "(hloc features)",
+      path.string(), extension);
+}
+
+void JoinOptions::Check() const {
+  THROW_CHECK_MSG(std::isfinite(max_keypoint_mismatch_px) && max_keypoint_mismatch_px >= 0,
+                  "JoinOptions.max_keypoint_mismatch_px must be finite and >= 0, got {}",
+                  max_keypoint_mismatch_px);
+}
+
+Observations JoinObservations(const Reconstruction& reconstruction, const FeatureReader& features,
+                              const JoinOptions& options) {
+  options.Check();
+  const std::string source = features.path().string();
+  for (const auto& [image_id, image] : reconstruction.images) {
+    if (!features.HasImage(image.name)) {
+      ThrowInvalidArgument(
+          "joining features {}: image '{}' (id {}) of the reconstruction has no "
+          "features",
+          source, image.name, image_id);
+    }
+  }
+
+  // Counted first so that the descriptor matrix is allocated once; features are then read one
+  // image at a time, never all at once.
+  size_t num_observations = 0;
+  for (const auto& [image_id, image] : reconstruction.images) {
+    num_observations += std::count_if(image.points2D.begin(), image.points2D.end(),
+                                      [](const Point2D& point) { return point.HasPoint3D(); });
+  }
+  Observations observations;
+  observations.image_ids.reserve(num_observations);
+  observations.keypoint_indices.reserve(num_observations);
+  observations.point3D_ids.reserve(num_observations);
+
+  const Image* first_image = nullptr;  // the image that fixed the descriptor dimension
+  size_t row = 0;
+  for (const auto& [image_id, image] : reconstruction.images) {
+    const bool observes = std::any_of(image.points2D.begin(), image.points2D.end(),
+                                      [](const Point2D& point) { return point.HasPoint3D(); });
+    if (!observes) continue;
+    const ImageFeatures image_features = features.Read(image.name);
+    const int64_t num_keypoints = image_features.NumKeypoints();
+    if (image_features.descriptors.rows() != num_keypoints) {
+      ThrowInvalidArgument("joining features {}: image '{}' has {} descriptors for {} keypoints",
+                           source, image.name, image_features.descriptors.rows(), num_keypoints);
+    }
+    if (first_image == nullptr) {
+      first_image = &image;
+      observations.descriptors.resize(num_observations, image_features.Dimension());
+    } else if (image_features.Dimension() != observations.Dimension()) {
+      ThrowInvalidArgument(
+          "joining features {}: descriptor dimension {} of image '{}' differs from {} of image "
+          "'{}'",
+          source, image_features.Dimension(), image.name, observations.Dimension(),
+          first_image->name);
+    }
+
+    for (size_t point2D_idx = 0; point2D_idx < image.points2D.size(); ++point2D_idx) {
+      const Point2D& point = image.points2D[point2D_idx];
+      if (!point.HasPoint3D()) continue;
+      if (static_cast<int64_t>(point2D_idx) >= num_keypoints) {
+        ThrowInvalidArgument(
+            "joining features {}: image '{}' (id {}), 2D point {} (3D point {}): only {} "
+            "keypoints",
+            source, image.name, image_id, point2D_idx, point.point3D_id, num_keypoints);
+      }
+      const Eigen::Vector2d keypoint = image_features.keypoints.row(point2D_idx).cast<double>();
+      const double mismatch_px = (keypoint - point.xy).norm();
+      if (!(mismatch_px <= options.max_keypoint_mismatch_px)) {
+        ThrowInvalidArgument(
+            "joining features {}: image '{}' (id {}), 2D point {} (3D point {}) at ({}, {}) is "
+            "{} px from its keypoint ({}, {}); max_keypoint_mismatch_px is {}",
+            source, image.name, image_id, point2D_idx, point.point3D_id, point.xy.x(), point.xy.y(),
+            mismatch_px, keypoint.x(), keypoint.y(), options.max_keypoint_mismatch_px);
+      }
+      observations.image_ids.push_back(image_id);
+      observations.keypoint_indices.push_back(static_cast<point2D_t>(point2D_idx));
+      observations.point3D_ids.push_back(point.point3D_id);
+      observations.descriptors.row(row++) = image_features.descriptors.row(point2D_idx);
+    }
+  }
+  return observations;
+}
+
+}  // namespace hscloc
