@@ -1,7 +1,7 @@
 // EstimateAbsolutePose on Aachen-like queries: 2000 keypoint-to-point matches in a 1600 x 1200
 // SIMPLE_RADIAL image, points 5 to 80 m away, 1 px keypoint noise, and wrong matches that pair a
 // keypoint with the point of another pixel. Arguments: solver (0 LO-RANSAC, 1 OpenCV USAC),
-// inlier percentage, and early_stop_inliers (USAC cannot stop early and ignores it). Besides time,
+// inlier percentage, and stop_sampling_past_inliers (USAC cannot stop early and ignores it). Besides time,
 // the counters report the accuracy against the true pose.
 #include <benchmark/benchmark.h>
 
@@ -68,12 +68,12 @@ double Median(std::vector<double> values) {
 void BM_EstimateAbsolutePose(benchmark::State& state) {
   const auto solver = static_cast<AbsolutePoseOptions::Solver>(state.range(0));
   const double inlier_ratio = state.range(1) / 100.0;
-  const int early_stop_inliers = static_cast<int>(state.range(2));
+  const int stop_sampling_past_inliers = static_cast<int>(state.range(2));
   std::vector<Query> queries;
   for (int i = 0; i < kNumQueries; ++i) queries.push_back(MakeQuery(inlier_ratio, 1000 + i));
   AbsolutePoseOptions options;
   options.solver = solver;
-  options.early_stop_inliers = early_stop_inliers;
+  options.stop_sampling_past_inliers = stop_sampling_past_inliers;
 
   std::vector<double> rotation_errors_deg, position_errors_cm;
   double iterations = 0, inliers = 0, successes = 0;

@@ -409,11 +409,13 @@ json LatencyGrid(const Localizer& localizer, const std::vector<LocalizationQuery
       sized.push_back(WithKeypointCount(queries[i], keypoints, i + 1));
     }
     for (const int top_k : {1, 10}) {
-      for (const bool exhaustive : {true, false}) {
-        if (top_k == 1 && !exhaustive) continue;  // one candidate: nothing to exit early from
+      for (const CandidateSearch search : {CandidateSearch::kAll, CandidateSearch::kUntilAccepted}) {
+        // One candidate: nothing to stop early from.
+        if (top_k == 1 && search == CandidateSearch::kUntilAccepted) continue;
         LocalizerOptions options;
         options.top_k = top_k;
-        options.exhaustive = exhaustive;
+        options.candidate_search = search;
+        const bool exhaustive = search == CandidateSearch::kAll;
         std::vector<double> retrieval, matching, visibility, pose, total;
         int localized = 0;
         localizer.Localize(sized.front(), options);  // warm-up
@@ -421,7 +423,7 @@ json LatencyGrid(const Localizer& localizer, const std::vector<LocalizationQuery
           const PoseResult result = localizer.Localize(query, options);
           localized += result.success;
           retrieval.push_back(result.timings.retrieval_ms);
-          matching.push_back(result.timings.matching_ms);
+          matching.push_back(result.timings.match_ms);
           visibility.push_back(result.timings.visibility_ms);
           pose.push_back(result.timings.pose_ms);
           total.push_back(result.timings.total_ms);

@@ -85,10 +85,20 @@ Matcher ParseMatcher(const std::string& name) {
 
 std::string MatcherName(Matcher matcher) { return matcher == Matcher::kNetwork ? "hsc" : "nn"; }
 
+CandidateSearch ParseCandidateSearch(const std::string& name) {
+  if (name == "all") return CandidateSearch::kAll;
+  if (name == "until-accepted") return CandidateSearch::kUntilAccepted;
+  ThrowInvalidArgument("unknown candidate search '{}' (all, until-accepted)", name);
+}
+
+std::string CandidateSearchName(CandidateSearch search) {
+  return search == CandidateSearch::kAll ? "all" : "until-accepted";
+}
+
 void LocalizerOptions::Check() const {
   THROW_CHECK_MSG(top_k >= 1 && top_k <= 1000, "LocalizerOptions.top_k = {} (1 .. 1000)", top_k);
-  THROW_CHECK_MSG(early_exit_inliers >= 1, "LocalizerOptions.early_exit_inliers = {}",
-                  early_exit_inliers);
+  THROW_CHECK_MSG(accept_candidate_inliers >= 1, "LocalizerOptions.accept_candidate_inliers = {}",
+                  accept_candidate_inliers);
   THROW_CHECK_MSG(nn_ratio > 0 && nn_ratio <= 1, "LocalizerOptions.nn_ratio = {}", nn_ratio);
   pose.Check();
 }
@@ -272,7 +282,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
                                            options.nn_ratio, options.nn_mutual);
       }
     }
-    result.timings.matching_ms += stage_timer.ElapsedMilliseconds();
+    result.timings.match_ms += stage_timer.ElapsedMilliseconds();
     stage_timer.Restart();
     for (size_t k = begin; k < end; ++k) {
       if (options.visibility_filter) {
@@ -321,7 +331,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   };
 
   const size_t num_candidates = result.candidates.size();
-  if (options.exhaustive) {
+  if (options.candidate_search == CandidateSearch::kAll) {
     match_candidates(0, num_candidates);
     for (size_t k = 0; k < num_candidates; ++k) estimate_pose(k);
   } else {
@@ -329,11 +339,11 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
     // runs on one image id instead of K. The rest follow as one batch only when it does not.
     match_candidates(0, 1);
     estimate_pose(0);
-    if (result.candidates[0].num_inliers < options.early_exit_inliers && num_candidates > 1) {
+    if (result.candidates[0].num_inliers < options.accept_candidate_inliers && num_candidates > 1) {
       match_candidates(1, num_candidates);
       for (size_t k = 1; k < num_candidates; ++k) {
         estimate_pose(k);
-        if (result.candidates[k].num_inliers >= options.early_exit_inliers) break;
+        if (result.candidates[k].num_inliers >= options.accept_candidate_inliers) break;
       }
     }
   }

@@ -22,8 +22,19 @@
 #include "scene/features.h"
 #include "model/network.h"
 #include "localization/localization_map.h"
+#include "localization/stage_timings.h"
 
 namespace hscloc {
+
+// How the Localizer goes through the retrieved candidates (its early stop; RANSAC's own early stop
+// is AbsolutePoseOptions::stop_sampling_past_inliers).
+enum class CandidateSearch {
+  kAll,            // every candidate is posed and the most inliers win (the paper)
+  kUntilAccepted,  // candidates in retrieval order; the first with accept_candidate_inliers wins
+};
+// "all" or "until-accepted"; throws std::invalid_argument otherwise.
+CandidateSearch ParseCandidateSearch(const std::string& name);
+std::string CandidateSearchName(CandidateSearch search);
 
 enum class Matcher {
   kNetwork,          // the hierarchical scene coordinate classification network ("hsc")
@@ -45,10 +56,9 @@ struct LocalizerOptions {
   bool use_image_id = true;
   // Restrict the network's choices at each level to subtrees the candidate image observes.
   bool visibility_masked_decoding = false;
-  // All K candidates are posed and the most inliers win (the paper). Otherwise candidates are taken
-  // in retrieval order and the first with at least early_exit_inliers inliers is returned.
-  bool exhaustive = true;
-  int early_exit_inliers = 100;
+  CandidateSearch candidate_search = CandidateSearch::kAll;
+  // Inliers with which kUntilAccepted accepts a candidate and stops.
+  int accept_candidate_inliers = 100;
   // Nearest-neighbour baseline: Lowe's ratio on descriptor distances, and mutual best matches.
   double nn_ratio = 0.9;
   bool nn_mutual = true;
@@ -77,15 +87,6 @@ struct LocalizationCandidate {
   int num_inliers = 0;
   bool pose_found = false;
   Rigid3d cam_from_world;
-};
-
-// Milliseconds per stage; `matching` is the network or the nearest-neighbour search.
-struct StageTimings {
-  double retrieval_ms = 0;
-  double matching_ms = 0;
-  double visibility_ms = 0;
-  double pose_ms = 0;
-  double total_ms = 0;
 };
 
 struct PoseResult {

@@ -57,7 +57,7 @@ RunSummary LocalizeAll(const Localizer& localizer, const LocalizerOptions& optio
     if (result.success) estimates.push_back({query.name, result.cam_from_world});
     const StageTimings& t = result.timings;
     summary.mean_timings.retrieval_ms += t.retrieval_ms / set.queries.size();
-    summary.mean_timings.matching_ms += t.matching_ms / set.queries.size();
+    summary.mean_timings.match_ms += t.match_ms / set.queries.size();
     summary.mean_timings.visibility_ms += t.visibility_ms / set.queries.size();
     summary.mean_timings.pose_ms += t.pose_ms / set.queries.size();
     summary.mean_timings.total_ms += t.total_ms / set.queries.size();
@@ -121,7 +121,7 @@ std::string TimingLine(const std::string& name, const RunSummary& run) {
   return fmt::format(
       "{:<28} retrieval {:6.2f}  matching {:7.2f}  visibility {:5.2f}  pose {:6.2f}  total {:7.2f} "
       "ms\n",
-      name, t.retrieval_ms, t.matching_ms, t.visibility_ms, t.pose_ms, t.total_ms);
+      name, t.retrieval_ms, t.match_ms, t.visibility_ms, t.pose_ms, t.total_ms);
 }
 
 TEST_F(SmallCityLocalizerTest, DayQueriesReachNinetyPercentAndTheBaselineIsReported) {
@@ -178,8 +178,8 @@ TEST_F(SmallCityLocalizerTest, AblationsMoveInTheExpectedDirection) {
 
 TEST_F(SmallCityLocalizerTest, EarlyExitPosesFewerCandidates) {
   LocalizerOptions early;
-  early.exhaustive = false;
-  early.early_exit_inliers = 30;
+  early.candidate_search = CandidateSearch::kUntilAccepted;
+  early.accept_candidate_inliers = 30;
   for (const char* condition : {"day", "night"}) {
     const RunSummary exhaustive =
         LocalizeAll(localizer(), LocalizerOptions(), Set(condition), condition);
@@ -237,9 +237,9 @@ TEST_F(SmallCityLocalizerTest, ResultDescribesTheWinningCandidate) {
   for (const uint32_t point : result.match_points) {
     EXPECT_TRUE(localizer().map().visibility().IsVisible(best.image_index, point));
   }
-  EXPECT_GT(result.timings.matching_ms, 0);
+  EXPECT_GT(result.timings.match_ms, 0);
   EXPECT_GE(result.timings.total_ms,
-            result.timings.retrieval_ms + result.timings.matching_ms + result.timings.pose_ms);
+            result.timings.retrieval_ms + result.timings.match_ms + result.timings.pose_ms);
 }
 
 TEST_F(SmallCityLocalizerTest, MalformedQueriesAreRejectedWithTheirReason) {

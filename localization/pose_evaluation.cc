@@ -192,4 +192,47 @@ std::string CumulativeErrorSvg(const std::vector<ConditionAccuracy>& accuracies,
   return svg;
 }
 
+ConditionQueries ConditionFromQueryList(const std::string& name, const std::filesystem::path& list) {
+  ConditionQueries condition{name, {}};
+  for (const QueryWithIntrinsics& query : ReadQueryList(list)) {
+    condition.basenames.insert(ImageBasename(query.name));
+  }
+  return condition;
+}
+
+std::vector<ConditionQueries> ParseConditions(const std::string& text) {
+  std::vector<ConditionQueries> conditions;
+  size_t begin = 0;
+  while (begin <= text.size()) {
+    const size_t end = std::min(text.find(',', begin), text.size());
+    const std::string item = text.substr(begin, end - begin);
+    const size_t colon = item.find(':');
+    if (colon == std::string::npos || colon == 0 || colon + 1 == item.size()) {
+      ThrowInvalidArgument("conditions: expected NAME:QUERY_LIST, got '{}'", item);
+    }
+    conditions.push_back(ConditionFromQueryList(item.substr(0, colon), item.substr(colon + 1)));
+    begin = end + 1;
+  }
+  return conditions;
+}
+
+std::vector<ConditionAccuracy> SummarizeAccuracyByCondition(
+    const std::vector<QueryPoseError>& errors, const std::vector<ConditionQueries>& conditions,
+    const std::vector<PoseThreshold>& thresholds) {
+  std::vector<ConditionAccuracy> accuracies;
+  for (const ConditionQueries& condition : conditions) {
+    std::vector<QueryPoseError> subset;
+    for (const QueryPoseError& error : errors) {
+      if (condition.basenames.count(ImageBasename(error.name))) subset.push_back(error);
+    }
+    if (subset.size() != condition.basenames.size()) {
+      ThrowInvalidArgument("condition '{}': {} of its {} queries lack ground truth",
+                           condition.name, condition.basenames.size() - subset.size(),
+                           condition.basenames.size());
+    }
+    accuracies.push_back(SummarizeAccuracy(condition.name, std::move(subset), thresholds));
+  }
+  return accuracies;
+}
+
 }  // namespace hscloc

@@ -3,8 +3,10 @@
 // median errors. Queries without an estimate count as failures at every threshold.
 #pragma once
 
+#include <filesystem>
 #include <limits>
 #include <string>
+#include <unordered_set>
 #include <vector>
 
 #include "scene/query_io.h"
@@ -47,6 +49,23 @@ struct ConditionAccuracy {
 ConditionAccuracy SummarizeAccuracy(const std::string& condition,
                                     std::vector<QueryPoseError> errors,
                                     const std::vector<PoseThreshold>& thresholds);
+
+// A named subset of the queries (a condition: day, night), by image basename.
+struct ConditionQueries {
+  std::string name;
+  std::unordered_set<std::string> basenames;
+};
+// The condition made of the queries of an Aachen query list.
+ConditionQueries ConditionFromQueryList(const std::string& name, const std::filesystem::path& list);
+// "day:LIST,night:LIST" -> one condition per item; throws std::invalid_argument naming the item
+// that is not NAME:LIST.
+std::vector<ConditionQueries> ParseConditions(const std::string& text);
+
+// One ConditionAccuracy per condition, over the errors of its queries. Throws
+// std::invalid_argument when queries of a condition have no ground truth (no error entry).
+std::vector<ConditionAccuracy> SummarizeAccuracyByCondition(
+    const std::vector<QueryPoseError>& errors, const std::vector<ConditionQueries>& conditions,
+    const std::vector<PoseThreshold>& thresholds);
 
 // A plain-text table, one row per condition:
 //   condition  queries  (0.25 m, 2 deg)  (0.5 m, 5 deg)  (5 m, 10 deg)  median position / rotation

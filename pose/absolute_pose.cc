@@ -42,7 +42,7 @@ SolverOutcome RunLoRansacSolver(std::vector<NormalizedCorrespondence> correspond
   }
   RansacOptions ransac_options;
   ransac_options.max_iterations = options.max_iterations;
-  ransac_options.stop_past_inliers = options.early_stop_inliers;
+  ransac_options.stop_past_inliers = options.stop_sampling_past_inliers;
   ransac_options.confidence = options.confidence;
   ransac_options.local_optimization = options.local_optimization;
   AbsolutePoseEstimator estimator(correspondences, options.max_reprojection_error_px);
@@ -175,9 +175,9 @@ void AbsolutePoseOptions::Check() const {
     ThrowInvalidArgument("AbsolutePoseOptions.max_iterations is {}, must be at least 1",
                          max_iterations);
   }
-  if (early_stop_inliers < 0) {
-    ThrowInvalidArgument("AbsolutePoseOptions.early_stop_inliers is {}, must be >= 0 (0: off)",
-                         early_stop_inliers);
+  if (stop_sampling_past_inliers < 0) {
+    ThrowInvalidArgument("AbsolutePoseOptions.stop_sampling_past_inliers is {}, must be >= 0 (0: off)",
+                         stop_sampling_past_inliers);
   }
   if (!(confidence > 0.0 && confidence <= 1.0)) {
     ThrowInvalidArgument("AbsolutePoseOptions.confidence is {}, must be in (0, 1]", confidence);

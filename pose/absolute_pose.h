@@ -41,7 +41,7 @@ struct AbsolutePoseOptions {
   // Most minimal samples drawn (hypotheses; one sample gives up to four P3P poses).
   int max_iterations = 5000;
   // Stop sampling once the best hypothesis has more than this many inliers; 0 disables.
-  int early_stop_inliers = 100;
+  int stop_sampling_past_inliers = 100;
   // Stop sampling once a hypothesis with more inliers than the best is at most this unlikely to
   // have been missed (the standard adaptive bound); 1 never stops on it.
   double confidence = 0.9999;

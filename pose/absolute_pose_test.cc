@@ -198,7 +198,7 @@ TEST(AbsolutePose, EarlyStopEndsSamplingWhenInliersArePlentiful) {
   EXPECT_LT(early.num_iterations, 200);
   EXPECT_THAT(early.cam_from_world, PoseNear(data.cam_from_world, 0.02, 0.1));
 
-  options.early_stop_inliers = 0;
+  options.stop_sampling_past_inliers = 0;
   const AbsolutePoseResult full = Estimate(data, options);
   ASSERT_TRUE(full.success) << full.failure_reason;
   EXPECT_EQ(full.num_iterations, options.max_iterations);
@@ -209,7 +209,7 @@ TEST(AbsolutePose, AdaptiveBoundEndsSamplingWithoutOutliers) {
   const Correspondences data =
       MakeCorrespondences(RandomCamera("PINHOLE", random), 50, 0, 0.5, random);
   AbsolutePoseOptions options;
-  options.early_stop_inliers = 0;
+  options.stop_sampling_past_inliers = 0;
   const AbsolutePoseResult result = Estimate(data, options);
   ASSERT_TRUE(result.success) << result.failure_reason;
   EXPECT_LT(result.num_iterations, 20);
@@ -308,7 +308,7 @@ TEST(AbsolutePose, BadInputThrowsNamingTheField) {
       {"max_reprojection_error_px",
        [](AbsolutePoseOptions& o) { o.max_reprojection_error_px = 0; }},
       {"max_iterations", [](AbsolutePoseOptions& o) { o.max_iterations = 0; }},
-      {"early_stop_inliers", [](AbsolutePoseOptions& o) { o.early_stop_inliers = -1; }},
+      {"stop_sampling_past_inliers", [](AbsolutePoseOptions& o) { o.stop_sampling_past_inliers = -1; }},
       {"confidence", [](AbsolutePoseOptions& o) { o.confidence = 1.5; }},
       {"min_inliers", [](AbsolutePoseOptions& o) { o.min_inliers = 3; }},
       {"solver", [](AbsolutePoseOptions& o) { o.solver = static_cast<Solver>(7); }},

@@ -132,7 +132,10 @@ LocalizerOptions OptionsFromWire(const wire::LocalizeOptions& overrides, Localiz
     options.top_k = static_cast<int>(overrides.top_k());
   }
   if (overrides.has_visibility_filter()) options.visibility_filter = overrides.visibility_filter();
-  if (overrides.has_exhaustive()) options.exhaustive = overrides.exhaustive();
+  if (overrides.has_exhaustive()) {
+    options.candidate_search =
+        overrides.exhaustive() ? CandidateSearch::kAll : CandidateSearch::kUntilAccepted;
+  }
   return options;
 }
 
@@ -162,7 +165,7 @@ void PoseResultToWire(const PoseResult& result, const Scene& scene,
   }
   wire::StageTimings* timings = response->mutable_timings();
   timings->set_retrieval_ms(result.timings.retrieval_ms);
-  timings->set_matching_ms(result.timings.matching_ms);
+  timings->set_match_ms(result.timings.match_ms);
   timings->set_visibility_ms(result.timings.visibility_ms);
   timings->set_pose_ms(result.timings.pose_ms);
   timings->set_total_ms(result.timings.total_ms);

@@ -106,7 +106,7 @@ TEST(WireTest, EveryInconsistentFieldIsNamed) {
   overrides.set_exhaustive(false);
   const LocalizerOptions options = OptionsFromWire(overrides, LocalizerOptions(), WireLimits());
   EXPECT_EQ(options.top_k, 3);
-  EXPECT_FALSE(options.exhaustive);
+  EXPECT_EQ(options.candidate_search, CandidateSearch::kUntilAccepted);
   EXPECT_TRUE(options.visibility_filter);
   overrides.set_top_k(1000);
   EXPECT_THAT(testing::InvalidArgumentMessage(

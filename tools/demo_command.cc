@@ -280,7 +280,7 @@ int RunDemo(const DemoArguments& arguments) {
         const PoseResult result = localizer.Localize(set[q], variants[v].options);
         if (result.success) estimates.push_back({set[q].name, result.cam_from_world});
         mean.retrieval_ms += result.timings.retrieval_ms / set.size();
-        mean.matching_ms += result.timings.matching_ms / set.size();
+        mean.match_ms += result.timings.match_ms / set.size();
         mean.visibility_ms += result.timings.visibility_ms / set.size();
         mean.pose_ms += result.timings.pose_ms / set.size();
         mean.total_ms += result.timings.total_ms / set.size();
@@ -295,7 +295,7 @@ int RunDemo(const DemoArguments& arguments) {
       rows.push_back(SummarizeAccuracy(fmt::format("{}", condition), subset, AachenThresholds()));
       if (v == 0) {
         latency_table += fmt::format("| {} | {:.1f} | {:.1f} | {:.2f} | {:.1f} | {:.1f} |\n",
-                                     condition, mean.retrieval_ms, mean.matching_ms,
+                                     condition, mean.retrieval_ms, mean.match_ms,
                                      mean.visibility_ms, mean.pose_ms, mean.total_ms);
       }
     }

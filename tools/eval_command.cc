@@ -24,28 +24,6 @@ struct EvalArguments {
   bool per_query = false;
 };
 
-// "day:LIST,night:LIST" -> (condition, query basenames of LIST).
-std::vector<std::pair<std::string, std::unordered_set<std::string>>> ParseConditions(
-    const std::string& text) {
-  std::vector<std::pair<std::string, std::unordered_set<std::string>>> conditions;
-  size_t begin = 0;
-  while (begin <= text.size()) {
-    const size_t end = std::min(text.find(',', begin), text.size());
-    const std::string item = text.substr(begin, end - begin);
-    const size_t colon = item.find(':');
-    if (colon == std::string::npos || colon == 0 || colon + 1 == item.size()) {
-      ThrowInvalidArgument("--conditions: expected NAME:QUERY_LIST, got '{}'", item);
-    }
-    std::unordered_set<std::string> names;
-    for (const QueryWithIntrinsics& query : ReadQueryList(item.substr(colon + 1))) {
-      names.insert(ImageBasename(query.name));
-    }
-    conditions.emplace_back(item.substr(0, colon), std::move(names));
-    begin = end + 1;
-  }
-  return conditions;
-}
-
 int RunEval(const EvalArguments& arguments) {
   const std::vector<NamedPose> ground_truth = ReadPoses(arguments.ground_truth);
   const std::vector<NamedPose> results = ReadPoses(arguments.results);
@@ -54,17 +32,8 @@ int RunEval(const EvalArguments& arguments) {
   if (arguments.conditions.empty()) {
     accuracies.push_back(SummarizeAccuracy("all", errors, AachenThresholds()));
   } else {
-    for (const auto& [condition, names] : ParseConditions(arguments.conditions)) {
-      std::vector<QueryPoseError> subset;
-      for (const QueryPoseError& error : errors) {
-        if (names.count(ImageBasename(error.name))) subset.push_back(error);
-      }
-      if (subset.size() != names.size()) {
-        ThrowInvalidArgument("condition '{}': {} of its {} queries lack ground truth", condition,
-                             names.size() - subset.size(), names.size());
-      }
-      accuracies.push_back(SummarizeAccuracy(condition, std::move(subset), AachenThresholds()));
-    }
+    accuracies = SummarizeAccuracyByCondition(errors, ParseConditions(arguments.conditions),
+                                              AachenThresholds());
   }
   size_t missing = 0;
   for (const QueryPoseError& error : errors) missing += !error.estimated;

@@ -60,7 +60,7 @@ void PrintResponse(const wire::LocalizeResponse& response) {
         "  ms: retrieval {:.1f}, matching {:.1f}, visibility {:.1f}, pose {:.1f}, localizer "
         "{:.1f}, "
         "server {:.1f}\n",
-        t.retrieval_ms(), t.matching_ms(), t.visibility_ms(), t.pose_ms(), t.total_ms(),
+        t.retrieval_ms(), t.match_ms(), t.visibility_ms(), t.pose_ms(), t.total_ms(),
         t.server_ms());
   }
 }
