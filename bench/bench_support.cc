@@ -39,21 +39,6 @@ void Step(const std::string& message) {
   std::cerr << fmt::format("[{:6.1f} s] {}\n", RunClock().ElapsedSeconds(), message) << std::flush;
 }
 
-double Percentile(std::vector<double> values, double fraction) {
-  if (values.empty()) return std::nan("");
-  std::sort(values.begin(), values.end());
-  const double position = fraction * (values.size() - 1);
-  const size_t below = static_cast<size_t>(position);
-  const size_t above = std::min(values.size() - 1, below + 1);
-  return values[below] + (position - below) * (values[above] - values[below]);
-}
-
-double Mean(const std::vector<double>& values) {
-  double sum = 0;
-  for (const double value : values) sum += value;
-  return values.empty() ? std::nan("") : sum / values.size();
-}
-
 // Runs `args` with stdout and stderr into `log`; throws with the log's tail when it fails.
 ChildRun RunChild(const std::vector<std::string>& args, const fs::path& log) {
   fs::create_directories(log.parent_path());

@@ -1,4 +1,4 @@
-// Helpers of hscloc-bench: progress lines, statistics, and the command-line tools it runs as
+// Helpers of hscloc-bench: progress lines and the command-line tools it runs as
 // child processes, timed and with their peak memory.
 #pragma once
 
@@ -11,10 +11,6 @@ namespace hscloc::bench {
 
 // Prints "[seconds since start] message" to stderr.
 void Step(const std::string& message);
-
-// Linear interpolation between order statistics; NaN for no values.
-double Percentile(std::vector<double> values, double fraction);
-double Mean(const std::vector<double>& values);
 
 struct ChildRun {
   double seconds = 0;

@@ -29,7 +29,7 @@ void BM_LoadMap(benchmark::State& state) {
   uint64_t bytes = 0;
   for (const auto& entry : std::filesystem::directory_iterator(dir)) {
     if (entry.is_regular_file() &&
-        (observations || entry.path().filename() != "observations.bin")) {
+        (observations || entry.path().filename() != map_blobs::kObservations)) {
       bytes += entry.file_size();
     }
   }

@@ -71,8 +71,8 @@ std::shared_ptr<const LocalizationMap> LocalizationMap::Load(
   }
   map->global_descriptors_ = ReadBlob(bundle, map_blobs::kGlobalDescriptors, ReadGlobalDescriptors);
   map->global_index_ = ReadBlob(bundle, map_blobs::kGlobalIndex, GlobalIndex::Read);
-  map->descriptor_dim_ = map->metadata_.value("descriptor_dim", 0);
-  if (options.load_network && bundle.HasBlob(network_blobs::kNetwork)) {
+  map->descriptor_dim_ = map->metadata_.value(map_metadata::kDescriptorDim, 0);
+  if (options.load_network && bundle.HasBlob(map_blobs::kNetwork)) {
     map->network_ = std::make_shared<const Network>(Network::FromBundle(bundle, options.device));
   }
 

@@ -13,6 +13,7 @@
 #include <string>
 
 #include "map/label_tree.h"
+#include "map/map_blobs.h"
 #include "model/network.h"
 #include "scene/scene.h"
 #include "map/visibility.h"
@@ -20,16 +21,6 @@
 #include "retrieval/vlad.h"
 
 namespace hscloc {
-
-namespace map_blobs {
-inline constexpr char kScene[] = "scene.bin";
-inline constexpr char kObservations[] = "observations.bin";
-inline constexpr char kLabelTree[] = "label_tree.bin";
-inline constexpr char kVisibility[] = "visibility.bin";
-inline constexpr char kVlad[] = "vlad.bin";
-inline constexpr char kGlobalDescriptors[] = "global_descriptors.bin";
-inline constexpr char kGlobalIndex[] = "global_index.bin";
-}  // namespace map_blobs
 
 using GlobalDescriptorMatrix =
     Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;

@@ -1,12 +1,14 @@
-// The localization pipeline of the "Aachen hybrid" of Li et al., CVPR 2020, for one query:
-//   retrieval   the query's global descriptor (VLAD of its local descriptors, or the one it brings)
-//               -> the top-K database images of the map's index
-//   matching    the hierarchical classification network predicts, for each keypoint and each
-//               retrieved image, the 3D point it sees (the descriptor-only layers once, the K
-//               image ids as one batch); or, as the explicit-matching baseline, mutual nearest
-//               neighbours with a ratio test against each retrieved image's observations
-//   visibility  matches to points the retrieved image does not observe are dropped
-//   pose        PnP-RANSAC and refinement per retrieved image; the pose with the most inliers wins
+// The localization pipeline of the "Aachen hybrid" of Li et al., CVPR 2020, for one query, as
+// named stages that data flows through in order:
+//   Retrieve       the query's global descriptor (VLAD of its local descriptors, or the one it
+//                  brings) -> the top-K database images of the map's index, the candidates
+//   Match          the hierarchical classification network predicts, for each keypoint and each
+//                  candidate, the 3D point it sees (the descriptor-only layers once, the K image
+//                  ids as one batch); or, as the explicit-matching baseline, mutual nearest
+//                  neighbours with a ratio test against each candidate's observations
+//   FilterVisible  matches to points the candidate image does not observe are dropped
+//   Pose           PnP-RANSAC and refinement per candidate
+//   Choose         the candidate pose with the most inliers wins
 // Thread-safe: any number of threads may call Localize concurrently on one Localizer.
 #pragma once
 
@@ -22,6 +24,7 @@
 #include "scene/features.h"
 #include "model/network.h"
 #include "localization/localization_map.h"
+#include "localization/nearest_neighbor_matcher.h"
 #include "localization/stage_timings.h"
 
 namespace hscloc {
@@ -59,9 +62,8 @@ struct LocalizerOptions {
   CandidateSearch candidate_search = CandidateSearch::kAll;
   // Inliers with which kUntilAccepted accepts a candidate and stops.
   int accept_candidate_inliers = 100;
-  // Nearest-neighbour baseline: Lowe's ratio on descriptor distances, and mutual best matches.
-  double nn_ratio = 0.9;
-  bool nn_mutual = true;
+  // The explicit-matching baseline's ratio test and mutuality.
+  NearestNeighborOptions nearest_neighbor;
   AbsolutePoseOptions pose;
 
   // Throws std::invalid_argument naming the field.
@@ -97,7 +99,8 @@ struct PoseResult {
   int num_inliers = 0;
   int best_candidate = -1;  // index into candidates, -1 on failure
   std::vector<LocalizationCandidate> candidates;
-  // The winning candidate's 2D-3D matches: keypoint row, dense point index, inlier flag.
+  // The winning candidate's 2D-3D matches: keypoint row, dense point index (into the scene's
+  // points), inlier flag.
   std::vector<int> match_keypoints;
   std::vector<uint32_t> match_points;
   std::vector<char> match_inliers;
@@ -130,15 +133,35 @@ class Localizer {
   const Network* network() const { return network_.get(); }
 
  private:
+  struct Evaluation;
+
   void CheckOptionsFit(const LocalizerOptions& options) const;
   void CheckQuery(const LocalizationQuery& query) const;
+
+  // The stages (see the top of this file).
+  std::vector<LocalizationCandidate> Retrieve(const LocalizationQuery& query,
+                                              const LocalizerOptions& options) const;
+  // The matches of candidates [begin, end), one entry each.
+  std::vector<CandidateMatches> Match(const LocalizationQuery& query,
+                                      const std::vector<LocalizationCandidate>& candidates,
+                                      size_t begin, size_t end,
+                                      const LocalizerOptions& options) const;
+  CandidateMatches FilterVisible(uint32_t image_index, CandidateMatches matches) const;
+  AbsolutePoseResult Pose(const LocalizationQuery& query, const CandidateMatches& matches,
+                          const LocalizerOptions& options) const;
+  // Match, FilterVisible and Pose for candidates [begin, end) of the evaluation; with
+  // `stop_when_accepted`, posing stops at the first candidate with accept_candidate_inliers.
+  void EvaluateCandidates(const LocalizationQuery& query, const LocalizerOptions& options,
+                          size_t begin, size_t end, bool stop_when_accepted,
+                          Evaluation& evaluation) const;
+  // The candidate with the most inliers among those posed successfully; -1 when none.
+  static int Choose(const std::vector<LocalizationCandidate>& candidates);
 
   std::shared_ptr<const LocalizationMap> map_;
   std::shared_ptr<const Network> network_;
   LocalizerOptions options_;
-  // Observation rows of each database image (nearest-neighbour matcher), CSR layout.
-  std::vector<uint32_t> observation_offsets_;
-  std::vector<uint32_t> observations_by_image_;
+  // Prepared once, when the map has observations.
+  std::shared_ptr<const NearestNeighborMatcher> nearest_neighbor_;
 };
 
 }  // namespace hscloc

@@ -5,6 +5,7 @@
 #include <algorithm>
 
 #include "scene/colmap_io.h"
+#include "map/map_blobs.h"
 #include "map/map_bundle.h"
 #include "scene/scene.h"
 #include "scene/scene_io.h"
@@ -166,12 +167,12 @@ MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& op
   writer.AddBlob(map_blobs::kGlobalIndex, [&](std::ostream& s) { index.Write(s); });
 
   nlohmann::json& metadata = writer.metadata();
-  metadata["descriptor_dim"] = scene.Dimension();
-  metadata["num_images"] = scene.NumImages();
-  metadata["num_points"] = scene.NumPoints();
-  metadata["num_observations"] = scene.NumObservations();
-  metadata["num_cameras"] = scene.cameras.size();
-  metadata["label_tree"] = {{"levels", tree.levels()},
+  metadata[map_metadata::kDescriptorDim] = scene.Dimension();
+  metadata[map_metadata::kNumImages] = scene.NumImages();
+  metadata[map_metadata::kNumPoints] = scene.NumPoints();
+  metadata[map_metadata::kNumObservations] = scene.NumObservations();
+  metadata[map_metadata::kNumCameras] = scene.cameras.size();
+  metadata[map_metadata::kLabelTree] = {{"levels", tree.levels()},
                             {"branching", tree.branching()},
                             {"num_nodes", tree.NumNodes()},
                             {"kmeans_iterations", options.label_tree.kmeans_iterations},
@@ -187,11 +188,11 @@ MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& op
         {"training_images", std::min<size_t>(scene.NumImages(), options.max_vlad_training_images)},
         {"seed", options.vlad.seed}};
   }
-  metadata["retrieval"] = retrieval;
-  metadata["sources"] = {{"model", fs::absolute(inputs.model_dir).string()},
+  metadata[map_metadata::kRetrieval] = retrieval;
+  metadata[map_metadata::kSources] = {{"model", fs::absolute(inputs.model_dir).string()},
                          {"features", fs::absolute(inputs.features).string()}};
   if (inputs.global_features) {
-    metadata["sources"]["global_features"] = fs::absolute(*inputs.global_features).string();
+    metadata[map_metadata::kSources]["global_features"] = fs::absolute(*inputs.global_features).string();
   }
   writer.Commit();
   summary.seconds_write = stage.ElapsedSeconds();

@@ -1,5 +1,7 @@
 #include "map/map_bundle.h"
 
+#include "map/map_blobs.h"
+
 #include <fcntl.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
@@ -19,7 +21,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-constexpr char kManifestName[] = "manifest.json";
+constexpr const char* kManifestName = map_blobs::kManifest;
 constexpr char kFormatName[] = "hscloc-map";
 constexpr char kCreatedBy[] = "hscloc 0.1.0";
 

@@ -358,12 +358,12 @@ Network Network::Load(std::istream& stream, const std::string& source, ComputeDe
 }
 
 Network Network::FromBundle(const MapBundle& bundle, ComputeDevice device) {
-  if (!bundle.HasBlob(network_blobs::kNetwork)) {
+  if (!bundle.HasBlob(map_blobs::kNetwork)) {
     ThrowInvalidArgument("map bundle {} holds no trained network (run `hscloc train`)",
                          bundle.dir().string());
   }
-  std::istringstream stream(bundle.Blob(network_blobs::kNetwork));
-  return Load(stream, (bundle.dir() / network_blobs::kNetwork).string(), device);
+  std::istringstream stream(bundle.Blob(map_blobs::kNetwork));
+  return Load(stream, (bundle.dir() / map_blobs::kNetwork).string(), device);
 }
 
 bool Network::HasSameWeights(const Network& other) const {
@@ -398,17 +398,19 @@ double Network::PredictFlops(int64_t num_descriptors, int64_t num_images,
   return 2 * per_level * levels_with_choice;
 }
 
-PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
-                                  const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                                  const Visibility* visibility_mask) const {
-  const NetworkShape& s = shape();
+// The contract of Predict and PredictWithLibtorch.
+void CheckPredictInputs(const Network& network, const DescriptorMatrix& descriptors,
+                        const std::vector<uint32_t>& image_indices, const LabelTree& tree,
+                        const Visibility* visibility_mask) {
+  const NetworkShape& s = network.shape();
   if (descriptors.rows() > 0 && descriptors.cols() != s.descriptor_dim) {
     ThrowInvalidArgument("network: descriptors of dimension {}, the network expects {}",
                          descriptors.cols(), s.descriptor_dim);
   }
   for (const uint32_t image : image_indices) {
-    if (image > NoImageIndex()) {
-      ThrowInvalidArgument("network: image index {} outside [0, {}]", image, NoImageIndex());
+    if (image > network.NoImageIndex()) {
+      ThrowInvalidArgument("network: image index {} outside [0, {}]", image,
+                           network.NoImageIndex());
     }
   }
   if (tree.levels() != s.levels || tree.branching() != s.branching) {
@@ -422,12 +424,42 @@ PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
                          visibility_mask->NumImages(), visibility_mask->NumPoints(), s.num_images,
                          tree.NumPoints());
   }
+}
 
+PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
+                                  const std::vector<uint32_t>& image_indices, const LabelTree& tree,
+                                  const Visibility* visibility_mask) const {
+  CheckPredictInputs(*this, descriptors, image_indices, tree, visibility_mask);
   if (impl_->device == ComputeDevice::kCpu) {
     return PredictOnCpu(*this, descriptors, image_indices, tree, visibility_mask);
   }
   return NetworkInternals::PredictWithTorch(*this, descriptors, image_indices, tree,
                                             visibility_mask);
+}
+
+PointPredictions Network::PredictWithLibtorch(const DescriptorMatrix& descriptors,
+                                              const std::vector<uint32_t>& image_indices,
+                                              const LabelTree& tree,
+                                              const Visibility* visibility_mask) const {
+  CheckPredictInputs(*this, descriptors, image_indices, tree, visibility_mask);
+  return NetworkInternals::PredictWithTorch(*this, descriptors, image_indices, tree,
+                                            visibility_mask);
+}
+
+double LibtorchMatrixProductGflops(int64_t size, double min_seconds) {
+  torch::NoGradGuard no_grad;
+  torch::manual_seed(0);
+  const torch::Tensor a = torch::randn({size, size});
+  const torch::Tensor b = torch::randn({size, size});
+  torch::Tensor c = torch::empty({size, size});
+  torch::mm_out(c, a, b);  // warm-up
+  const Timer timer;
+  int runs = 0;
+  do {
+    torch::mm_out(c, a, b);
+    ++runs;
+  } while (timer.ElapsedSeconds() < min_seconds);
+  return 2.0 * size * size * size * runs / timer.ElapsedSeconds() / 1e9;
 }
 
 PointPredictions NetworkInternals::PredictWithTorch(const Network& network,

@@ -29,15 +29,11 @@
 
 #include "scene/features.h"
 #include "map/label_tree.h"
+#include "map/map_blobs.h"
 #include "map/map_bundle.h"
 #include "map/visibility.h"
 
 namespace hscloc {
-
-namespace network_blobs {
-inline constexpr char kNetwork[] = "network.pt";
-inline constexpr char kTrainingLog[] = "training_log.csv";
-}  // namespace network_blobs
 
 // Where tensors live. kCuda needs a libtorch built with CUDA and a visible GPU.
 enum class ComputeDevice { kCpu, kCuda };
@@ -52,6 +48,11 @@ bool IsComputeDeviceAvailable(ComputeDevice device);
 // and libtorch's OpenMP pool one: both pools spin while waiting, and on shared cores they starve
 // each other (training 4 to 25 times slower, docs/decisions.md).
 void SetComputeThreads(int num_threads);
+
+// libtorch's fp32 matrix product of two size x size matrices, in GFLOP/s, over at least
+// `min_seconds` (after a warm-up), with the threads SetComputeThreads gave: the machine's peak
+// that reports compare against.
+double LibtorchMatrixProductGflops(int64_t size, double min_seconds);
 
 // What the map fixes: descriptor dimension, label tree shape and the number of database images.
 struct NetworkShape {
@@ -117,7 +118,7 @@ class Network {
   // format version.
   static Network Load(std::istream& stream, const std::string& source,
                       ComputeDevice device = ComputeDevice::kCpu);
-  // The network of a trained map bundle (blob network_blobs::kNetwork); throws naming the bundle
+  // The network of a trained map bundle (blob map_blobs::kNetwork); throws naming the bundle
   // when it has none.
   static Network FromBundle(const MapBundle& bundle, ComputeDevice device = ComputeDevice::kCpu);
 
@@ -130,6 +131,13 @@ class Network {
   PointPredictions Predict(const DescriptorMatrix& descriptors,
                            const std::vector<uint32_t>& image_indices, const LabelTree& tree,
                            const Visibility* visibility_mask = nullptr) const;
+
+  // Predict through libtorch's operators instead of hscloc's CPU kernels: the path a CUDA device
+  // takes, and the reference the CPU kernels are tested against. Same contract as Predict.
+  PointPredictions PredictWithLibtorch(const DescriptorMatrix& descriptors,
+                                       const std::vector<uint32_t>& image_indices,
+                                       const LabelTree& tree,
+                                       const Visibility* visibility_mask = nullptr) const;
 
   // Floating-point operations (2 per multiply-add) of the matrix products of one Predict call,
   // counting the generator once per (image, descriptor) pair, i.e. without the deduplication of

@@ -477,10 +477,10 @@ void WriteNetworkToBundle(
     const TrainerOptions& options,
     const std::vector<std::pair<std::string, NetworkEvaluation>>& evaluations) {
   MapBundleWriter writer = MapBundleWriter::Update(bundle_dir);
-  writer.AddBlob(network_blobs::kNetwork,
+  writer.AddBlob(map_blobs::kNetwork,
                  [&](std::ostream& stream) { result.network.Save(stream); });
   const std::string csv = result.LogCsv();
-  writer.AddBlob(network_blobs::kTrainingLog,
+  writer.AddBlob(map_blobs::kTrainingLog,
                  [&](std::ostream& stream) { stream.write(csv.data(), csv.size()); });
 
   const NetworkShape& shape = result.network.shape();
@@ -520,7 +520,7 @@ void WriteNetworkToBundle(
                              {"leaf_accuracy", evaluation.leaf_accuracy}};
   }
   json["evaluations"] = evaluation_json;
-  writer.metadata()["network"] = json;
+  writer.metadata()[map_metadata::kNetwork] = json;
   writer.Commit();
 }
 

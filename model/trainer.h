@@ -122,7 +122,7 @@ NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, co
                                   const std::vector<uint32_t>& observation_indices,
                                   const Visibility* visibility_mask = nullptr);
 
-// Adds the network (network_blobs::kNetwork), the training log (network_blobs::kTrainingLog) and
+// Adds the network (map_blobs::kNetwork), the training log (map_blobs::kTrainingLog) and
 // metadata "network" (shape, options, training summary, and the evaluations given) to an existing
 // map bundle, atomically.
 void WriteNetworkToBundle(

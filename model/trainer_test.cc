@@ -206,7 +206,7 @@ TEST_F(TinyCityTrainerTest, WritesTheNetworkIntoTheBundle) {
   EXPECT_EQ(metadata["training"]["iterations"], 20);
   EXPECT_EQ(metadata["options"]["channels"], 128);
   EXPECT_EQ(metadata["evaluations"]["held_out"]["observations"], held_out.num_observations);
-  EXPECT_THAT(bundle.Blob(network_blobs::kTrainingLog),
+  EXPECT_THAT(bundle.Blob(map_blobs::kTrainingLog),
               ::testing::StartsWith("iteration,seconds,learning_rate,loss,accuracy_level1"));
 
   const Network loaded = Network::FromBundle(bundle);

@@ -13,6 +13,10 @@ namespace hscloc {
 using KeypointMatrix = Eigen::Matrix<float, Eigen::Dynamic, 2, Eigen::RowMajor>;
 using DescriptorMatrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
+// Scales every row to unit L2 norm (zero rows stay zero), so that dot products are cosines.
+void NormalizeRows(DescriptorMatrix& rows);
+DescriptorMatrix UnitRows(DescriptorMatrix rows);
+
 // The local features of one image: N keypoints in pixels (COLMAP convention, the centre of the
 // top-left pixel at (0.5, 0.5)) and N descriptors of dimension D, one per row.
 struct ImageFeatures {

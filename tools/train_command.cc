@@ -78,11 +78,11 @@ int RunTrain(TrainArguments& arguments) {
                            arguments.map_dir);
     }
     const nlohmann::json training = map->metadata()
-                                        .value("network", nlohmann::json::object())
-                                        .value("training", nlohmann::json::object());
+                                        .value(map_metadata::kNetwork, nlohmann::json::object())
+                                        .value(map_metadata::kTraining, nlohmann::json::object());
     EvaluateHeldOut(*map->network(), *map,
-                    training.value("holdout_fraction", options.holdout_fraction),
-                    training.value("holdout_seed", options.holdout_seed));
+                    training.value(map_metadata::kHoldoutFraction, options.holdout_fraction),
+                    training.value(map_metadata::kHoldoutSeed, options.holdout_seed));
     return 0;
   }
 
@@ -104,7 +104,7 @@ int RunTrain(TrainArguments& arguments) {
   }
   WriteNetworkToBundle(arguments.map_dir, result, options, evaluations);
   std::cout << fmt::format("network written to {} ({}, {})\n", arguments.map_dir,
-                           network_blobs::kNetwork, network_blobs::kTrainingLog);
+                           map_blobs::kNetwork, map_blobs::kTrainingLog);
   return 0;
 }
 

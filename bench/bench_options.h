@@ -1,0 +1,22 @@
+// The options of hscloc-bench, shared by its steps.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+namespace hscloc::bench {
+
+struct BenchOptions {
+  bool quick = false;
+  bool from_json = false;    // only rewrite the report from the JSON file's numbers
+  std::string scale_only;    // only measure this preset's scale row, into the existing JSON
+  double train_minutes = 0;  // training budget of --scale-only (0: the full run's)
+  std::filesystem::path work = "bench-work";
+  std::filesystem::path data = HSCLOC_DEFAULT_DATA_DIR;
+  std::filesystem::path report = "docs/performance.md";
+  std::filesystem::path json_path;  // default: the report's path with .json
+  std::string hscloc = HSCLOC_TOOL_PATH;
+  std::string colmap = "colmap";
+};
+
+}  // namespace hscloc::bench

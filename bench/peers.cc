@@ -1,0 +1,153 @@
+#include "bench/peers.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "bench/bench_support.h"
+#include "util/statistics.h"
+#include "util/timer.h"
+
+#include "bench/query_evaluation.h"
+#include "localization/localization_map.h"
+#include "localization/query_runner.h"
+#include "map/map_blobs.h"
+#include "scene/colmap_io.h"
+#include "scene/feature_io.h"
+
+namespace hscloc::bench {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+json RunColmapRegistration(const BenchOptions& options, const fs::path& set_dir,
+                           const std::vector<QueryWithIntrinsics>& queries,
+                           const std::vector<NamedPose>& ground_truth) {
+  if (!CanRun(options.colmap)) return {{"skipped", "the colmap binary is not installed"}};
+  const fs::path dir = options.work / "colmap" / set_dir.filename();
+  fs::remove_all(dir);
+  fs::create_directories(dir / "registered");
+  fs::copy_file(set_dir / "database.db", dir / "database.db");
+  const Reconstruction map = ReadColmapModel(set_dir / "map");
+  // COLMAP's registration needs every map image in its correspondence graph: the map images are
+  // matched among themselves first (a one-off cost of building its map, not timed per query).
+  const auto match_pairs = [&](const std::string& name,
+                               const std::vector<std::pair<std::string, std::string>>& pairs) {
+    {
+      std::ofstream list(dir / (name + ".txt"));
+      for (const auto& [a, b] : pairs) list << a << ' ' << b << '\n';
+    }
+    return RunChild(
+        {options.colmap, "matches_importer", "--database_path", (dir / "database.db").string(),
+         "--match_list_path", (dir / (name + ".txt")).string(), "--match_type", "pairs",
+         "--SiftMatching.use_gpu", "0"},
+        dir / (name + ".log"));
+  };
+  std::vector<std::pair<std::string, std::string>> map_pairs;
+  std::vector<std::pair<std::string, std::string>> query_pairs;
+  for (auto a = map.images.begin(); a != map.images.end(); ++a) {
+    for (auto b = std::next(a); b != map.images.end(); ++b) {
+      map_pairs.emplace_back(a->second.name, b->second.name);
+    }
+    for (const QueryWithIntrinsics& query : queries) {
+      query_pairs.emplace_back(query.name, a->second.name);
+    }
+  }
+  match_pairs("map_pairs", map_pairs);
+  const ChildRun matching = match_pairs("query_pairs", query_pairs);
+  const ChildRun registration = RunChild(
+      {options.colmap, "image_registrator", "--database_path", (dir / "database.db").string(),
+       "--input_path", (set_dir / "map").string(), "--output_path", (dir / "registered").string()},
+      dir / "image_registrator.log");
+  const Reconstruction registered = ReadColmapModel(dir / "registered");
+  std::vector<NamedPose> estimates;
+  for (const auto& [id, image] : registered.images) {
+    for (const QueryWithIntrinsics& query : queries) {
+      if (image.name == query.name) estimates.push_back({image.name, image.cam_from_world});
+    }
+  }
+  const ConditionAccuracy accuracy =
+      SummarizeAccuracy("colmap", ComputePoseErrors(ground_truth, estimates), AachenThresholds());
+  return {{"queries", accuracy.num_queries},
+          {"localized_fraction", accuracy.localized_fraction},
+          {"median_position", accuracy.median_position},
+          {"median_rotation_deg", accuracy.median_rotation_deg},
+          {"ms_per_query", 1000 * (matching.seconds + registration.seconds) / queries.size()},
+          {"map_bytes", fs::file_size(set_dir / "database.db") + DirectoryBytes(set_dir / "map")}};
+}
+
+// HSC needs the bundle without the observations' descriptors; the nearest-neighbour matcher needs
+// them and not the network.
+json BundleSizes(const fs::path& bundle) {
+  const std::vector<std::string> bookkeeping = {map_blobs::kManifest, map_blobs::kTrainingLog};
+  std::vector<std::string> without_descriptors = bookkeeping;
+  without_descriptors.push_back(map_blobs::kObservations);
+  std::vector<std::string> without_network = bookkeeping;
+  without_network.push_back(map_blobs::kNetwork);
+  return {{"hsc_bytes", DirectoryBytes(bundle, without_descriptors)},
+          {"nn_bytes", DirectoryBytes(bundle, without_network)},
+          {"network_bytes", fs::file_size(bundle / map_blobs::kNetwork)},
+          {"descriptor_bytes", fs::file_size(bundle / map_blobs::kObservations)}};
+}
+
+// HSC and the nearest-neighbour baseline (and COLMAP on real photos) on one query set.
+json ComparePeers(const std::string& name, const fs::path& bundle, double train_seconds,
+                  const std::vector<LocalizationQuery>& queries,
+                  const std::vector<NamedPose>& ground_truth, const json& colmap) {
+  const auto map = LocalizationMap::Load(bundle, {.load_observations = true});
+  const Localizer localizer(map, map->network());
+  json peers = {{"set", name},
+                {"queries", queries.size()},
+                {"train_s", train_seconds},
+                {"sizes", BundleSizes(bundle)}};
+  for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
+    LocalizerOptions localizer_options;
+    localizer_options.matcher = matcher;
+    peers[MatcherName(matcher)] =
+        AccuracyJson(Evaluate(localizer, localizer_options, queries, ground_truth, name));
+  }
+  peers["colmap"] = colmap;
+  return peers;
+}
+
+json RealSetPeers(const BenchOptions& options, const std::string& set, double train_minutes) {
+  const fs::path set_dir = options.data / set;
+  if (!fs::exists(set_dir / "database.db")) {
+    return {{"set", set}, {"skipped", fmt::format("{} not found", set_dir.string())}};
+  }
+  const fs::path bundle = options.work / set / "map";
+  Step(fmt::format("{}: build-map and train for {} min", set, train_minutes));
+  fs::remove_all(bundle);
+  RunChild({options.hscloc, "build-map", "--model", (set_dir / "map").string(), "--features",
+            (set_dir / "database.db").string(), "--out", bundle.string()},
+           options.work / set / "build_map.log");
+  const ChildRun train = RunChild({options.hscloc, "train", "--map", bundle.string(), "--minutes",
+                                   fmt::format("{}", train_minutes), "--checkpoint",
+                                   (options.work / set / "checkpoint.pt").string()},
+                                  options.work / set / "train.log");
+  const auto features = OpenColmapDatabaseFeatures(set_dir / "database.db");
+  const std::vector<QueryWithIntrinsics> list =
+      ReadQueryList(set_dir / "queries_with_intrinsics.txt");
+  const std::vector<NamedPose> ground_truth = ReadPoses(set_dir / "queries_gt.txt");
+  const std::vector<LocalizationQuery> queries =
+      LoadQueries(set_dir / "queries_with_intrinsics.txt", *features, nullptr, list.size());
+  Step(fmt::format("{}: COLMAP image_registrator", set));
+  json colmap;
+  try {
+    colmap = RunColmapRegistration(options, set_dir, list, ground_truth);
+  } catch (const std::exception& error) {
+    colmap = {{"skipped", error.what()}};
+  }
+  Step(fmt::format("{}: HSC and nearest neighbours", set));
+  json peers = ComparePeers(set, bundle, train.seconds, queries, ground_truth, colmap);
+  peers["sizes"]["colmap_database_bytes"] = fs::file_size(set_dir / "database.db");
+  return peers;
+}
+
+}  // namespace hscloc::bench

@@ -1,0 +1,67 @@
+#include "bench/query_evaluation.h"
+
+#include "model/network.h"
+#include "util/parallel.h"
+#include "util/random.h"
+#include "util/statistics.h"
+
+namespace hscloc::bench {
+
+using nlohmann::json;
+
+LocalizationQuery WithKeypointCount(const LocalizationQuery& query, int64_t count, uint64_t seed) {
+  LocalizationQuery result = query;
+  const int64_t own = std::min<int64_t>(count, query.keypoints.rows());
+  const int64_t dim = query.descriptors.cols();
+  result.keypoints.resize(count, 2);
+  result.descriptors.resize(count, dim);
+  result.keypoints.topRows(own) = query.keypoints.topRows(own);
+  result.descriptors.topRows(own) = query.descriptors.topRows(own);
+  Random random(seed);
+  for (int64_t i = own; i < count; ++i) {
+    result.keypoints(i, 0) = static_cast<float>(random.Uniform(0, query.camera.width));
+    result.keypoints(i, 1) = static_cast<float>(random.Uniform(0, query.camera.height));
+    for (int64_t j = 0; j < dim; ++j) result.descriptors(i, j) = float(random.Normal());
+    result.descriptors.row(i).normalize();
+  }
+  return result;
+}
+
+
+Evaluation Evaluate(const Localizer& localizer, const LocalizerOptions& options,
+                    const std::vector<LocalizationQuery>& queries,
+                    const std::vector<NamedPose>& ground_truth, const std::string& condition) {
+  SetComputeThreads(1);
+  Evaluation evaluation;
+  evaluation.results.resize(queries.size());
+  ParallelFor(queries.size(), 0, [&](size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      evaluation.results[i] = localizer.Localize(queries[i], options);
+    }
+  });
+  std::vector<NamedPose> estimates;
+  std::vector<NamedPose> truth;
+  for (size_t i = 0; i < queries.size(); ++i) {
+    estimates.push_back({queries[i].name, evaluation.results[i].cam_from_world});
+    const std::string basename = ImageBasename(queries[i].name);
+    for (const NamedPose& pose : ground_truth) {
+      if (ImageBasename(pose.name) == basename) truth.push_back(pose);
+    }
+  }
+  evaluation.accuracy =
+      SummarizeAccuracy(condition, ComputePoseErrors(truth, estimates), AachenThresholds());
+  return evaluation;
+}
+
+json AccuracyJson(const Evaluation& evaluation) {
+  std::vector<double> total_ms;
+  for (const PoseResult& result : evaluation.results) total_ms.push_back(result.timings.total_ms);
+  return {{"queries", evaluation.accuracy.num_queries},
+          {"localized_fraction", evaluation.accuracy.localized_fraction},
+          {"median_position", evaluation.accuracy.median_position},
+          {"median_rotation_deg", evaluation.accuracy.median_rotation_deg},
+          {"ms_per_query_one_thread", Mean(total_ms)}};
+}
+
+
+}  // namespace hscloc::bench

@@ -1,0 +1,34 @@
+// Localizing a benchmark's query sets and scoring them, as `hscloc localize` and `hscloc eval` do.
+#pragma once
+
+#include <cstdint>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "localization/localizer.h"
+#include "localization/pose_evaluation.h"
+#include "scene/query_io.h"
+
+namespace hscloc::bench {
+
+// The query with exactly `count` keypoints: its own (the first `count` when it has more), then
+// clutter keypoints, uniform in the image with random unit descriptors, as a detector tuned to
+// return `count` keypoints would add.
+LocalizationQuery WithKeypointCount(const LocalizationQuery& query, int64_t count, uint64_t seed);
+
+struct Evaluation {
+  ConditionAccuracy accuracy;
+  std::vector<PoseResult> results;
+};
+
+// Localizes the queries, each on one thread and several at a time (as `hscloc localize` does),
+// and scores them against the ground truth.
+Evaluation Evaluate(const Localizer& localizer, const LocalizerOptions& options,
+                    const std::vector<LocalizationQuery>& queries,
+                    const std::vector<NamedPose>& ground_truth, const std::string& condition);
+
+// Accuracy per threshold, medians and the mean time per query.
+nlohmann::json AccuracyJson(const Evaluation& evaluation);
+
+}  // namespace hscloc::bench
