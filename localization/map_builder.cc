@@ -4,13 +4,13 @@
 
 #include <algorithm>
 
-#include "scene/colmap_io.h"
+#include "localization/localization_map.h"
 #include "map/map_blobs.h"
 #include "map/map_bundle.h"
+#include "map/visibility.h"
+#include "scene/colmap_io.h"
 #include "scene/scene.h"
 #include "scene/scene_io.h"
-#include "map/visibility.h"
-#include "localization/localization_map.h"
 #include "util/check.h"
 #include "util/parallel.h"
 #include "util/progress_bar.h"
@@ -98,6 +98,60 @@ uint64_t DirectoryBytes(const fs::path& dir) {
   return bytes;
 }
 
+// The retrieval stage's parts: the VLAD encoder (absent with external global descriptors) and
+// one global descriptor per database image.
+struct RetrievalParts {
+  std::optional<VladEncoder> vlad;
+  GlobalDescriptorMatrix global_descriptors;
+};
+
+RetrievalParts BuildRetrieval(const MapBuildInputs& inputs, const MapBuildOptions& options,
+                              const Scene& scene, const FeatureReader& features) {
+  RetrievalParts parts;
+  if (inputs.global_features) {
+    parts.global_descriptors = ExternalGlobalDescriptors(scene, *inputs.global_features);
+  } else {
+    parts.vlad = TrainVlad(scene, features, options);
+    parts.global_descriptors = EncodeDatabase(scene, features, *parts.vlad, options);
+  }
+  return parts;
+}
+
+void WriteMetadata(const MapBuildInputs& inputs, const MapBuildOptions& options, const Scene& scene,
+                   const LabelTree& tree, const RetrievalParts& retrieval,
+                   nlohmann::json& metadata) {
+  const bool vlad = retrieval.vlad.has_value();
+  const GlobalDescriptorMatrix& global_descriptors = retrieval.global_descriptors;
+  metadata[map_metadata::kDescriptorDim] = scene.Dimension();
+  metadata[map_metadata::kNumImages] = scene.NumImages();
+  metadata[map_metadata::kNumPoints] = scene.NumPoints();
+  metadata[map_metadata::kNumObservations] = scene.NumObservations();
+  metadata[map_metadata::kNumCameras] = scene.cameras.size();
+  metadata[map_metadata::kLabelTree] = {{"levels", tree.levels()},
+                                        {"branching", tree.branching()},
+                                        {"num_nodes", tree.NumNodes()},
+                                        {"kmeans_iterations", options.label_tree.kmeans_iterations},
+                                        {"seed", options.label_tree.seed}};
+  nlohmann::json retrieval_json = {{"global_descriptor", vlad ? "vlad" : "external"},
+                                   {"global_descriptor_dim", global_descriptors.cols()},
+                                   {"index", IndexTypeName(options.global_index.type)}};
+  if (vlad) {
+    retrieval_json["vlad"] = {
+        {"num_words", options.vlad.num_words},
+        {"whitened_dim", options.vlad.whitened_dim},
+        {"power_normalization", options.vlad.power_normalization},
+        {"training_images", std::min<size_t>(scene.NumImages(), options.max_vlad_training_images)},
+        {"seed", options.vlad.seed}};
+  }
+  metadata[map_metadata::kRetrieval] = retrieval_json;
+  metadata[map_metadata::kSources] = {{"model", fs::absolute(inputs.model_dir).string()},
+                                      {"features", fs::absolute(inputs.features).string()}};
+  if (inputs.global_features) {
+    metadata[map_metadata::kSources]["global_features"] =
+        fs::absolute(*inputs.global_features).string();
+  }
+}
+
 }  // namespace
 
 void MapBuildOptions::Check() const {
@@ -141,18 +195,12 @@ MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& op
                tree.branching(), tree.NumNodes(), summary.seconds_label_tree);
 
   stage.Restart();
-  std::optional<VladEncoder> vlad;
-  GlobalDescriptorMatrix global_descriptors;
-  if (inputs.global_features) {
-    global_descriptors = ExternalGlobalDescriptors(scene, *inputs.global_features);
-  } else {
-    vlad = TrainVlad(scene, *features, options);
-    global_descriptors = EncodeDatabase(scene, *features, *vlad, options);
-  }
-  const GlobalIndex index = GlobalIndex::Build(global_descriptors, options.global_index);
+  const RetrievalParts retrieval = BuildRetrieval(inputs, options, scene, *features);
+  const GlobalIndex index = GlobalIndex::Build(retrieval.global_descriptors, options.global_index);
   summary.seconds_retrieval = stage.ElapsedSeconds();
   spdlog::info("retrieval: {} global descriptors of dimension {} ({:.1f} s)",
-               global_descriptors.rows(), global_descriptors.cols(), summary.seconds_retrieval);
+               retrieval.global_descriptors.rows(), retrieval.global_descriptors.cols(),
+               summary.seconds_retrieval);
 
   stage.Restart();
   MapBundleWriter writer(bundle_dir);
@@ -161,39 +209,14 @@ MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& op
                  [&](std::ostream& s) { WriteSceneObservations(s, scene); });
   writer.AddBlob(map_blobs::kLabelTree, [&](std::ostream& s) { tree.Write(s); });
   writer.AddBlob(map_blobs::kVisibility, [&](std::ostream& s) { visibility.Write(s); });
-  if (vlad) writer.AddBlob(map_blobs::kVlad, [&](std::ostream& s) { vlad->Write(s); });
+  if (retrieval.vlad) {
+    writer.AddBlob(map_blobs::kVlad, [&](std::ostream& s) { retrieval.vlad->Write(s); });
+  }
   writer.AddBlob(map_blobs::kGlobalDescriptors,
-                 [&](std::ostream& s) { WriteGlobalDescriptors(s, global_descriptors); });
+                 [&](std::ostream& s) { WriteGlobalDescriptors(s, retrieval.global_descriptors); });
   writer.AddBlob(map_blobs::kGlobalIndex, [&](std::ostream& s) { index.Write(s); });
 
-  nlohmann::json& metadata = writer.metadata();
-  metadata[map_metadata::kDescriptorDim] = scene.Dimension();
-  metadata[map_metadata::kNumImages] = scene.NumImages();
-  metadata[map_metadata::kNumPoints] = scene.NumPoints();
-  metadata[map_metadata::kNumObservations] = scene.NumObservations();
-  metadata[map_metadata::kNumCameras] = scene.cameras.size();
-  metadata[map_metadata::kLabelTree] = {{"levels", tree.levels()},
-                            {"branching", tree.branching()},
-                            {"num_nodes", tree.NumNodes()},
-                            {"kmeans_iterations", options.label_tree.kmeans_iterations},
-                            {"seed", options.label_tree.seed}};
-  nlohmann::json retrieval = {{"global_descriptor", vlad ? "vlad" : "external"},
-                              {"global_descriptor_dim", global_descriptors.cols()},
-                              {"index", IndexTypeName(options.global_index.type)}};
-  if (vlad) {
-    retrieval["vlad"] = {
-        {"num_words", options.vlad.num_words},
-        {"whitened_dim", options.vlad.whitened_dim},
-        {"power_normalization", options.vlad.power_normalization},
-        {"training_images", std::min<size_t>(scene.NumImages(), options.max_vlad_training_images)},
-        {"seed", options.vlad.seed}};
-  }
-  metadata[map_metadata::kRetrieval] = retrieval;
-  metadata[map_metadata::kSources] = {{"model", fs::absolute(inputs.model_dir).string()},
-                         {"features", fs::absolute(inputs.features).string()}};
-  if (inputs.global_features) {
-    metadata[map_metadata::kSources]["global_features"] = fs::absolute(*inputs.global_features).string();
-  }
+  WriteMetadata(inputs, options, scene, tree, retrieval, writer.metadata());
   writer.Commit();
   summary.seconds_write = stage.ElapsedSeconds();
 
@@ -201,7 +224,7 @@ MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& op
   summary.num_points = scene.NumPoints();
   summary.num_observations = scene.NumObservations();
   summary.descriptor_dim = static_cast<int>(scene.Dimension());
-  summary.global_descriptor_dim = static_cast<int>(global_descriptors.cols());
+  summary.global_descriptor_dim = static_cast<int>(retrieval.global_descriptors.cols());
   summary.num_tree_nodes = tree.NumNodes();
   summary.bundle_bytes = DirectoryBytes(bundle_dir);
   summary.seconds_total = total.ElapsedSeconds();

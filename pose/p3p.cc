@@ -4,6 +4,8 @@
 #include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
+#include <optional>
+#include <vector>
 
 namespace hscloc {
 namespace {
@@ -85,6 +87,67 @@ struct P3PProblem {
   }
 };
 
+// The positive depths on one plane of the degenerate conic (at most two) that satisfy
+// depth^T constraint depth = 0 and the distance equations.
+std::vector<Eigen::Vector3d> DepthsOnPlane(const P3PProblem& problem, const Eigen::Vector3d& plane,
+                                           const Eigen::Matrix3d& constraint) {
+  // Eliminate the depth with the largest coefficient: depth = scale * (p + tau q).
+  const bool eliminate_first = std::abs(plane[0]) >= std::abs(plane[1]);
+  Eigen::Vector3d p, q;
+  if (eliminate_first) {
+    p << -plane[1] / plane[0], 1.0, 0.0;
+    q << -plane[2] / plane[0], 0.0, 1.0;
+  } else {
+    p << 1.0, -plane[0] / plane[1], 0.0;
+    q << 0.0, -plane[2] / plane[1], 1.0;
+  }
+  const double qa = q.dot(constraint * q);
+  const double qb = 2.0 * p.dot(constraint * q);
+  const double qc = p.dot(constraint * p);
+  std::vector<double> taus;
+  if (std::abs(qa) <= 1e-14 * (std::abs(qb) + std::abs(qc))) {
+    if (qb != 0.0) taus.push_back(-qc / qb);
+  } else {
+    const double discriminant = qb * qb - 4.0 * qa * qc;
+    if (discriminant < -1e-12 * qb * qb) return {};
+    const double root = std::sqrt(std::max(0.0, discriminant));
+    // The numerically stable pair of roots.
+    const double w = -0.5 * (qb + std::copysign(root, qb));
+    taus.push_back(w / qa);
+    if (w != 0.0) taus.push_back(qc / w);
+  }
+  std::vector<Eigen::Vector3d> depths;
+  for (const double tau : taus) {
+    if (!(tau > 0.0)) continue;
+    // The scale from the distance equation between the two depths that p + tau q keeps free.
+    const double cosine = eliminate_first ? problem.b23 : problem.b13;
+    const double squared_distance = eliminate_first ? problem.a23 : problem.a13;
+    const double scale = std::sqrt(squared_distance / (tau * (tau - 2.0 * cosine) + 1.0));
+    const Eigen::Vector3d depth = scale * (p + tau * q);
+    if (depth.minCoeff() > 0.0) depths.push_back(depth);
+  }
+  return depths;
+}
+
+// The rigid transform that puts the world points at `depth` along their rays; none when the
+// numbers are not finite.
+std::optional<Rigid3d> PoseFromDepths(const Eigen::Vector3d& depth,
+                                      const std::array<Eigen::Vector3d, 3>& rays_in_cam,
+                                      const std::array<Eigen::Vector3d, 3>& points_in_world,
+                                      const Eigen::Matrix3d& world_basis_inverse) {
+  std::array<Eigen::Vector3d, 3> points_in_cam;
+  for (int k = 0; k < 3; ++k) points_in_cam[k] = depth[k] * rays_in_cam[k];
+  const Eigen::Vector3d c12 = points_in_cam[0] - points_in_cam[1];
+  const Eigen::Vector3d c13 = points_in_cam[0] - points_in_cam[2];
+  Eigen::Matrix3d cam_basis;
+  cam_basis << c12, c13, c12.cross(c13);
+  Eigen::Quaterniond rotation(Eigen::Matrix3d(cam_basis * world_basis_inverse));
+  rotation.normalize();
+  const Eigen::Vector3d translation = points_in_cam[0] - rotation * points_in_world[0];
+  if (!rotation.coeffs().allFinite() || !translation.allFinite()) return std::nullopt;
+  return Rigid3d(rotation, translation);
+}
+
 }  // namespace
 
 P3PSolutions SolveP3P(const std::array<Eigen::Vector3d, 3>& rays_in_cam,
@@ -145,56 +208,10 @@ P3PSolutions SolveP3P(const std::array<Eigen::Vector3d, 3>& rays_in_cam,
   const Eigen::Matrix3d world_basis_inverse = world_basis.inverse();
 
   for (const double sign : {1.0, -1.0}) {
-    const Eigen::Vector3d plane = e1 - sign * s * e2;
-    // Eliminate the depth with the largest coefficient: depth = scale * (p + tau q).
-    const bool eliminate_first = std::abs(plane[0]) >= std::abs(plane[1]);
-    Eigen::Vector3d p, q;
-    if (eliminate_first) {
-      p << -plane[1] / plane[0], 1.0, 0.0;
-      q << -plane[2] / plane[0], 0.0, 1.0;
-    } else {
-      p << 1.0, -plane[0] / plane[1], 0.0;
-      q << 0.0, -plane[2] / plane[1], 1.0;
-    }
-    const double qa = q.dot(constraint * q);
-    const double qb = 2.0 * p.dot(constraint * q);
-    const double qc = p.dot(constraint * p);
-    double taus[2];
-    int num_taus = 0;
-    if (std::abs(qa) <= 1e-14 * (std::abs(qb) + std::abs(qc))) {
-      if (qb != 0.0) taus[num_taus++] = -qc / qb;
-    } else {
-      const double discriminant = qb * qb - 4.0 * qa * qc;
-      if (discriminant < -1e-12 * qb * qb) continue;
-      const double root = std::sqrt(std::max(0.0, discriminant));
-      // The numerically stable pair of roots.
-      const double w = -0.5 * (qb + std::copysign(root, qb));
-      taus[num_taus++] = w / qa;
-      if (w != 0.0) taus[num_taus++] = qc / w;
-    }
-    for (int i = 0; i < num_taus; ++i) {
-      const double tau = taus[i];
-      if (!(tau > 0.0)) continue;
-      // The scale from the distance equation between the two depths that p + tau q keeps free.
-      const double cosine = eliminate_first ? b23 : b13;
-      const double squared_distance = eliminate_first ? a23 : a13;
-      const double scale = std::sqrt(squared_distance / (tau * (tau - 2.0 * cosine) + 1.0));
-      Eigen::Vector3d depth = scale * (p + tau * q);
-      if (!(depth.minCoeff() > 0.0)) continue;
-      depth = problem.RefineDepths(depth);
-
-      std::array<Eigen::Vector3d, 3> points_in_cam;
-      for (int k = 0; k < 3; ++k) points_in_cam[k] = depth[k] * rays_in_cam[k];
-      const Eigen::Vector3d c12 = points_in_cam[0] - points_in_cam[1];
-      const Eigen::Vector3d c13 = points_in_cam[0] - points_in_cam[2];
-      Eigen::Matrix3d cam_basis;
-      cam_basis << c12, c13, c12.cross(c13);
-      const Eigen::Matrix3d rotation = cam_basis * world_basis_inverse;
-      Eigen::Quaterniond quaternion(rotation);
-      quaternion.normalize();
-      const Eigen::Vector3d translation = points_in_cam[0] - quaternion * points_in_world[0];
-      if (!quaternion.coeffs().allFinite() || !translation.allFinite()) continue;
-      solutions.cam_from_world[solutions.num_solutions++] = Rigid3d(quaternion, translation);
+    for (const Eigen::Vector3d& depth : DepthsOnPlane(problem, e1 - sign * s * e2, constraint)) {
+      const std::optional<Rigid3d> pose = PoseFromDepths(problem.RefineDepths(depth), rays_in_cam,
+                                                         points_in_world, world_basis_inverse);
+      if (pose) solutions.cam_from_world[solutions.num_solutions++] = *pose;
     }
   }
   return solutions;
