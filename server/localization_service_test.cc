@@ -302,15 +302,24 @@ TEST_F(LocalizationServiceTest, StopDrainsAcceptedRequestsAndRefusesLaterOnes) {
   };
   while (!statuses.count("health")) ASSERT_TRUE(receive());
   std::thread stopper([&] { service->Stop(); });
-  // A request that arrives while the server drains is refused, not dropped.
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  send("late", localize);
-  while (statuses.size() < 6 && receive()) {
+  // A health probe and a localize request back to back, until a probe finds the server stopping.
+  // One connection's messages are read in order and a stopping server never serves again, so the
+  // request right after a refused probe must be refused too (UNAVAILABLE), not dropped or served.
+  dealer.set(zmq::sockopt::rcvtimeo, 10000);
+  std::string refused_probe;
+  for (int pair = 0; refused_probe.empty() && pair < 10000; ++pair) {
+    const std::string probe = "probe" + std::to_string(pair);
+    send(probe, health);
+    send("late" + std::to_string(pair), localize);
+    while (!statuses.count(probe)) ASSERT_TRUE(receive()) << probe;
+    if (statuses[probe] == wire::UNAVAILABLE) refused_probe = probe;
   }
+  ASSERT_FALSE(refused_probe.empty()) << "no probe saw the server stopping";
+  const std::string late = "late" + refused_probe.substr(5);
+  while (!statuses.count(late)) ASSERT_TRUE(receive()) << late;
   stopper.join();
   for (int i = 0; i < 4; ++i) EXPECT_EQ(statuses[std::to_string(i)], wire::OK) << i;
-  ASSERT_TRUE(statuses.count("late"));
-  EXPECT_NE(statuses["late"], wire::INVALID_REQUEST);  // UNAVAILABLE, or OK if it beat the stop
+  EXPECT_EQ(statuses[late], wire::UNAVAILABLE);
 }
 
 // Copies the bundle (its files are small enough) so that it can be damaged.

@@ -3,46 +3,19 @@
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
-#include <atomic>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
-#include <mutex>
-#include <thread>
 
-#include "features/feature_extraction.h"
+#include "client/batch_runner.h"
 #include "client/localization_client.h"
+#include "features/feature_extraction.h"
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
-#include "util/progress_bar.h"
 #include "util/timer.h"
 
 namespace hscloc {
 namespace {
-
-std::string FormatCamera(const Camera& camera) {
-  std::string text =
-      fmt::format("{} {} {}", CameraModelName(camera.model_id), camera.width, camera.height);
-  for (const double param : camera.params) text += fmt::format(" {}", param);
-  return text;
-}
-
-wire::LocalizeRequest RequestFromFeatures(const std::string& name, const wire::Camera& camera,
-                                          const ImageFeatures& features, bool float16) {
-  const std::vector<float> keypoints(features.keypoints.data(),
-                                     features.keypoints.data() + features.keypoints.size());
-  const std::vector<float> descriptors(features.descriptors.data(),
-                                       features.descriptors.data() + features.descriptors.size());
-  return MakeLocalizeRequest(name, camera, keypoints, descriptors,
-                             static_cast<uint32_t>(features.Dimension()), float16);
-}
-
-// The server sends the unit quaternion it computed, as doubles; it is written as received, so that
-// a submission made through the server is bit for bit the one `hscloc localize` writes.
-Rigid3d PoseOf(const wire::Pose& pose) {
-  return Rigid3d(Eigen::Quaterniond(pose.qw(), pose.qx(), pose.qy(), pose.qz()),
-                 Eigen::Vector3d(pose.tx(), pose.ty(), pose.tz()));
-}
 
 void PrintResponse(const wire::LocalizeResponse& response) {
   std::cout << fmt::format(
@@ -57,7 +30,7 @@ void PrintResponse(const wire::LocalizeResponse& response) {
         response.num_inliers(), response.retrieved_image_name(), response.retrieved_image_id());
     const wire::StageTimings& t = response.timings();
     std::cout << fmt::format(
-        "  ms: retrieval {:.1f}, matching {:.1f}, visibility {:.1f}, pose {:.1f}, localizer "
+        "  ms: retrieval {:.1f}, match {:.1f}, visibility {:.1f}, pose {:.1f}, localizer "
         "{:.1f}, "
         "server {:.1f}\n",
         t.retrieval_ms(), t.match_ms(), t.visibility_ms(), t.pose_ms(), t.total_ms(),
@@ -81,65 +54,23 @@ void ResolveKeys(CommonArguments& common) {
   common.client.curve_server_key = key.substr(0, 40);
 }
 
-int RunBatch(CommonArguments& common, const std::vector<std::string>& lists,
-             const std::string& features_path, const std::string& out, int inflight) {
+int RunBatchCommand(CommonArguments& common, const std::vector<std::string>& lists,
+                    const std::string& features_path, const std::string& out, int inflight) {
   ResolveKeys(common);
   std::vector<QueryWithIntrinsics> queries;
   for (const std::string& list : lists) {
     for (QueryWithIntrinsics& query : ReadQueryList(list)) queries.push_back(std::move(query));
   }
-  const std::unique_ptr<FeatureReader> features = OpenFeatureReader(features_path);
-  std::ofstream submission(out);
-  std::ofstream failures(out + ".failures.txt");
-  if (!submission || !failures) throw std::invalid_argument("cannot write " + out);
-  ProgressBar progress("batch", queries.size());
-  std::mutex mutex;
-  std::atomic<size_t> next{0};
-  size_t localized = 0;
-  size_t failed = 0;
-  std::exception_ptr error;
-  Timer timer;
-  const auto worker = [&] {
-    try {
-      LocalizationClient client(common.client);
-      for (size_t i = next++; i < queries.size(); i = next++) {
-        const QueryWithIntrinsics& query = queries[i];
-        const wire::LocalizeRequest request =
-            RequestFromFeatures(query.name, ParseCamera(FormatCamera(query.camera)),
-                                features->Read(query.name), common.float16);
-        const wire::LocalizeResponse response = client.Localize(request);
-        std::lock_guard<std::mutex> lock(mutex);
-        const std::string basename = ImageBasename(query.name);
-        if (response.status() == wire::OK || response.status() == wire::NOT_LOCALIZED) {
-          // As `hscloc localize`: a failed query gets the top-1 retrieved image's pose.
-          submission << FormatPoseLine(basename, PoseOf(response.cam_from_world())) << std::flush;
-        }
-        if (response.status() == wire::OK) {
-          ++localized;
-        } else {
-          ++failed;
-          failures << basename << ' ' << wire::Status_Name(response.status()) << ' '
-                   << response.error_message() << '\n'
-                   << std::flush;
-        }
-        progress.SetStatus(fmt::format("{} localized, {} failed", localized, failed));
-        progress.Advance();
-      }
-    } catch (...) {
-      std::lock_guard<std::mutex> lock(mutex);
-      if (!error) error = std::current_exception();
-      next = queries.size();
-    }
-  };
-  std::vector<std::thread> threads;
-  for (int t = 0; t < std::max(1, inflight); ++t) threads.emplace_back(worker);
-  for (std::thread& thread : threads) thread.join();
-  progress.Finish();
-  if (error) std::rethrow_exception(error);
+  BatchOptions options;
+  options.client = common.client;
+  options.out = out;
+  options.inflight = inflight;
+  options.float16 = common.float16;
+  const BatchSummary summary = RunBatch(queries, *OpenFeatureReader(features_path), options);
   std::cout << fmt::format("localized {} of {} queries ({} failed) in {} with {} in flight\n",
-                           localized, queries.size(), failed,
-                           FormatDuration(timer.ElapsedSeconds()), inflight);
-  return failed == queries.size() && !queries.empty() ? 1 : 0;
+                           summary.num_localized, summary.num_queries, summary.num_failed,
+                           FormatDuration(summary.seconds), inflight);
+  return summary.num_failed == summary.num_queries && summary.num_queries > 0 ? 1 : 0;
 }
 
 }  // namespace
@@ -212,7 +143,7 @@ int main(int argc, char** argv) {
   batch->add_option("--out", *out, "Submission file")->required();
   batch->add_option("--inflight", *inflight, "Requests in flight")->capture_default_str();
   batch->callback(
-      [&] { run = [&] { return RunBatch(common, *lists, *features, *out, *inflight); }; });
+      [&] { run = [&] { return RunBatchCommand(common, *lists, *features, *out, *inflight); }; });
 
   CLI::App* health = app.add_subcommand("health", "Ask the server whether it serves");
   health->callback([&] {
