@@ -92,13 +92,13 @@ QueryScores ScoreQueries(const fs::path& city_dir, const SyntheticCity& city,
   std::vector<std::pair<uint32_t, KeypointScores*>> truth;
   for (const SyntheticView& query : city.queries(condition)) {
     const ImageFeatures query_features = features->Read(query.name);
-    const std::vector<int64_t>& ids = point_ids.at(query.name);
+    const std::vector<int64_t>& point3D_ids = point_ids.at(query.name);
     std::vector<uint32_t> points;
     std::vector<int64_t> rows;
     std::vector<int> votes(scene.NumImages(), 0);
-    for (size_t row = 0; row < ids.size(); ++row) {
-      if (ids[row] < 0) continue;
-      points.push_back(scene.PointIndex(static_cast<point3D_t>(ids[row])));
+    for (size_t row = 0; row < point3D_ids.size(); ++row) {
+      if (point3D_ids[row] < 0) continue;
+      points.push_back(scene.PointIndex(static_cast<point3D_t>(point3D_ids[row])));
       rows.push_back(static_cast<int64_t>(row));
       for (const uint32_t image : images_of_point[points.back()]) ++votes[image];
     }
@@ -117,7 +117,9 @@ QueryScores ScoreQueries(const fs::path& city_dir, const SyntheticCity& city,
                                        Eigen::NoChange);
     all_descriptors.bottomRows(descriptors.rows()) = descriptors;
     for (size_t i = 0; i < points.size(); ++i) {
-      KeypointScores& kind = shared[ids[rows[i]] - 1] ? scores.ambiguous : scores.unique;
+      // The synthetic city's point3D id is its point index + 1 (not the map's dense index).
+      const int64_t city_point = point3D_ids[rows[i]] - 1;
+      KeypointScores& kind = shared[city_point] ? scores.ambiguous : scores.unique;
       ++kind.keypoints;
       kind.hsc_correct += plain.point_indices(0, i) == points[i];
       kind.masked_correct += masked.point_indices(0, i) == points[i];
