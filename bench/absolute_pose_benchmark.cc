@@ -1,8 +1,8 @@
 // EstimateAbsolutePose on Aachen-like queries: 2000 keypoint-to-point matches in a 1600 x 1200
 // SIMPLE_RADIAL image, points 5 to 80 m away, 1 px keypoint noise, and wrong matches that pair a
 // keypoint with the point of another pixel. Arguments: solver (0 LO-RANSAC, 1 OpenCV USAC),
-// inlier percentage, and stop_sampling_past_inliers (USAC cannot stop early and ignores it). Besides time,
-// the counters report the accuracy against the true pose.
+// inlier percentage, and stop_sampling_past_inliers (USAC cannot stop early and ignores it).
+// Besides time, the counters report the accuracy against the true pose.
 #include <benchmark/benchmark.h>
 
 #include <Eigen/Geometry>

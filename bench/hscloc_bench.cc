@@ -30,18 +30,18 @@
 #include "bench/bench_support.h"
 #include "bench/measurements.h"
 #include "bench/peers.h"
-#include "bench/query_evaluation.h"
 #include "bench/performance_report.h"
+#include "bench/query_evaluation.h"
 #include "client/localization_client.h"
-#include "scene/colmap_io.h"
-#include "scene/feature_io.h"
-#include "localization/pose_evaluation.h"
-#include "scene/query_io.h"
-#include "server/localization_service.h"
 #include "localization/localizer.h"
+#include "localization/pose_evaluation.h"
 #include "localization/query_runner.h"
 #include "map/map_blobs.h"
 #include "model/network.h"
+#include "scene/colmap_io.h"
+#include "scene/feature_io.h"
+#include "scene/query_io.h"
+#include "server/localization_service.h"
 #include "server/wire.h"
 #include "util/logging.h"
 #include "util/parallel.h"
@@ -54,7 +54,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-
 
 // ---------------------------------------------------------------------------------------------
 // The machine's limit.

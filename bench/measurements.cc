@@ -11,9 +11,6 @@
 #include <thread>
 
 #include "bench/bench_support.h"
-#include "util/statistics.h"
-#include "util/timer.h"
-
 #include "bench/query_evaluation.h"
 #include "client/localization_client.h"
 #include "model/dense_kernels.h"
@@ -21,6 +18,8 @@
 #include "server/localization_service.h"
 #include "server/wire.h"
 #include "util/parallel.h"
+#include "util/statistics.h"
+#include "util/timer.h"
 
 namespace hscloc::bench {
 
@@ -60,7 +59,6 @@ json MeasureGemmPeaks() {
           {"peak_gflops", std::max(torch_gflops, kernel_gflops)},
           {"kernel_instruction_sets", dense_kernels::KernelInstructionSets()}};
 }
-
 
 json NetworkAgainstFloor(const Localizer& localizer, const LocalizationQuery& query,
                          const json& peaks) {
@@ -112,7 +110,8 @@ json LatencyGrid(const Localizer& localizer, const std::vector<LocalizationQuery
       sized.push_back(WithKeypointCount(queries[i], keypoints, i + 1));
     }
     for (const int top_k : {1, 10}) {
-      for (const CandidateSearch search : {CandidateSearch::kAll, CandidateSearch::kUntilAccepted}) {
+      for (const CandidateSearch search :
+           {CandidateSearch::kAll, CandidateSearch::kUntilAccepted}) {
         // One candidate: nothing to stop early from.
         if (top_k == 1 && search == CandidateSearch::kUntilAccepted) continue;
         LocalizerOptions options;

@@ -11,10 +11,10 @@
 #include <vector>
 
 #include "map/label_tree.h"
-#include "model/network.h"
-#include "scene/scene.h"
-#include "model/trainer.h"
 #include "map/visibility.h"
+#include "model/network.h"
+#include "model/trainer.h"
+#include "scene/scene.h"
 #include "util/random.h"
 
 namespace hscloc {

@@ -11,15 +11,14 @@
 #include <thread>
 
 #include "bench/bench_support.h"
-#include "util/statistics.h"
-#include "util/timer.h"
-
 #include "bench/query_evaluation.h"
 #include "localization/localization_map.h"
 #include "localization/query_runner.h"
 #include "map/map_blobs.h"
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
+#include "util/statistics.h"
+#include "util/timer.h"
 
 namespace hscloc::bench {
 

@@ -27,7 +27,6 @@ LocalizationQuery WithKeypointCount(const LocalizationQuery& query, int64_t coun
   return result;
 }
 
-
 Evaluation Evaluate(const Localizer& localizer, const LocalizerOptions& options,
                     const std::vector<LocalizationQuery>& queries,
                     const std::vector<NamedPose>& ground_truth, const std::string& condition) {
@@ -62,6 +61,5 @@ json AccuracyJson(const Evaluation& evaluation) {
           {"median_rotation_deg", evaluation.accuracy.median_rotation_deg},
           {"ms_per_query_one_thread", Mean(total_ms)}};
 }
-
 
 }  // namespace hscloc::bench

@@ -59,9 +59,9 @@ BatchSummary RunBatch(const std::vector<QueryWithIntrinsics>& queries,
   std::ofstream submission(options.out);
   std::ofstream failures(summary.failures_path);
   if (!submission || !failures) ThrowInvalidArgument("cannot write {}", options.out.string());
-  ProgressBar progress("batch", queries.size(),
-                       options.show_progress ? ProgressBar::Display::kAuto
-                                             : ProgressBar::Display::kNever);
+  ProgressBar progress(
+      "batch", queries.size(),
+      options.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
   std::mutex mutex;
   std::atomic<size_t> next{0};
   std::exception_ptr error;

@@ -14,11 +14,11 @@
 
 #include "map/label_tree.h"
 #include "map/map_blobs.h"
-#include "model/network.h"
-#include "scene/scene.h"
 #include "map/visibility.h"
+#include "model/network.h"
 #include "retrieval/global_index.h"
 #include "retrieval/vlad.h"
+#include "scene/scene.h"
 
 namespace hscloc {
 

@@ -141,8 +141,8 @@ PoseResult Localizer::Localize(const LocalizationQuery& query) const {
 // What EvaluateCandidates fills in as candidates are matched and posed.
 struct Localizer::Evaluation {
   PoseResult result;
-  std::vector<CandidateMatches> matches;         // one per candidate, after FilterVisible
-  std::vector<std::vector<char>> inlier_masks;   // one per candidate, empty until posed
+  std::vector<CandidateMatches> matches;        // one per candidate, after FilterVisible
+  std::vector<std::vector<char>> inlier_masks;  // one per candidate, empty until posed
 };
 
 std::vector<LocalizationCandidate> Localizer::Retrieve(const LocalizationQuery& query,
@@ -170,8 +170,8 @@ std::vector<CandidateMatches> Localizer::Match(const LocalizationQuery& query,
   if (options.matcher == Matcher::kNearestNeighbor) {
     const DescriptorMatrix unit_query = UnitRows(query.descriptors);
     for (size_t k = begin; k < end; ++k) {
-      matches[k - begin] = nearest_neighbor_->Match(unit_query, candidates[k].image_index,
-                                                    options.nearest_neighbor);
+      matches[k - begin] =
+          nearest_neighbor_->Match(unit_query, candidates[k].image_index, options.nearest_neighbor);
     }
     return matches;
   }
@@ -298,8 +298,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   evaluation.matches.resize(num_candidates);
   evaluation.inlier_masks.resize(num_candidates);
   if (options.candidate_search == CandidateSearch::kAll) {
-    EvaluateCandidates(query, options, 0, num_candidates, /*stop_when_accepted=*/false,
-                       evaluation);
+    EvaluateCandidates(query, options, 0, num_candidates, /*stop_when_accepted=*/false, evaluation);
   } else {
     // The first candidate alone: when retrieval is right it settles the query, and the network
     // runs on one image id instead of K. The rest follow as one batch only when it does not.

@@ -18,14 +18,14 @@
 #include <string>
 #include <vector>
 
-#include "pose/absolute_pose.h"
 #include "geometry/camera.h"
 #include "geometry/rigid3d.h"
-#include "scene/features.h"
-#include "model/network.h"
 #include "localization/localization_map.h"
 #include "localization/nearest_neighbor_matcher.h"
 #include "localization/stage_timings.h"
+#include "model/network.h"
+#include "pose/absolute_pose.h"
+#include "scene/features.h"
 
 namespace hscloc {
 

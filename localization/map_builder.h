@@ -8,10 +8,10 @@
 #include <optional>
 #include <string>
 
-#include "scene/feature_io.h"
 #include "map/label_tree.h"
 #include "retrieval/global_index.h"
 #include "retrieval/vlad.h"
+#include "scene/feature_io.h"
 
 namespace hscloc {
 

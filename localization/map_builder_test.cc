@@ -5,11 +5,11 @@
 
 #include <fstream>
 
+#include "localization/localization_map.h"
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
 #include "synthetic/synthetic_city.h"
 #include "synthetic/synthetic_city_writer.h"
-#include "localization/localization_map.h"
 #include "util/testing.h"
 
 namespace hscloc {

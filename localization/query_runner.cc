@@ -149,9 +149,9 @@ QueryListRunSummary RunQueryList(const Localizer& localizer,
   summary.num_threads =
       std::min<int>(ResolveNumThreads(options.num_threads), std::max<size_t>(pending.size(), 1));
   SetComputeThreads(1);
-  ProgressBar progress("localize", pending.size(),
-                       options.show_progress ? ProgressBar::Display::kAuto
-                                             : ProgressBar::Display::kNever);
+  ProgressBar progress(
+      "localize", pending.size(),
+      options.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
   std::mutex mutex;
   std::atomic<size_t> next{0};
   std::exception_ptr error;

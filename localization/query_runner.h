@@ -23,10 +23,10 @@ using GlobalDescriptorMap = std::unordered_map<std::string, Eigen::VectorXf>;
 // The queries of a list with their local features (and global descriptors, when given), in list
 // order, at most `limit` of them. Throws std::invalid_argument naming the list or the feature
 // source when a query has no features or no global descriptor.
-std::vector<LocalizationQuery> LoadQueries(
-    const std::filesystem::path& list, const FeatureReader& features,
-    const GlobalDescriptorMap* global_descriptors = nullptr,
-    size_t limit = std::numeric_limits<size_t>::max());
+std::vector<LocalizationQuery> LoadQueries(const std::filesystem::path& list,
+                                           const FeatureReader& features,
+                                           const GlobalDescriptorMap* global_descriptors = nullptr,
+                                           size_t limit = std::numeric_limits<size_t>::max());
 // One query of a list entry.
 LocalizationQuery LoadQuery(const QueryWithIntrinsics& entry, const FeatureReader& features,
                             const GlobalDescriptorMap* global_descriptors = nullptr);
@@ -44,10 +44,10 @@ struct QueryListRunOptions {
 };
 
 struct QueryListRunSummary {
-  size_t num_queries = 0;   // in the lists
-  size_t num_skipped = 0;   // already in `out` when resuming
+  size_t num_queries = 0;  // in the lists
+  size_t num_skipped = 0;  // already in `out` when resuming
   size_t num_localized = 0;
-  size_t num_failed = 0;    // still written (the top-1 retrieved image's pose), and listed
+  size_t num_failed = 0;  // still written (the top-1 retrieved image's pose), and listed
   std::filesystem::path failures_path;
   int num_threads = 0;
   double seconds = 0;

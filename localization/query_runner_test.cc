@@ -31,8 +31,7 @@ class QueryRunnerTest : public ::testing::Test {
     dir_ = new testing::TempDir();
     SyntheticCityWriteOptions write_options;
     write_options.show_progress = false;
-    WriteSyntheticCity(SyntheticCity(SyntheticCityOptions::Preset("tiny")), City(),
-                       write_options);
+    WriteSyntheticCity(SyntheticCity(SyntheticCityOptions::Preset("tiny")), City(), write_options);
     MapBuildOptions build_options;
     build_options.show_progress = false;
     build_options.label_tree.show_progress = false;

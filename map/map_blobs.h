@@ -5,8 +5,8 @@
 namespace hscloc {
 
 namespace map_blobs {
-inline constexpr char kManifest[] = "manifest.json";  // written by MapBundleWriter itself
-inline constexpr char kScene[] = "scene.bin";         // cameras, images, points
+inline constexpr char kManifest[] = "manifest.json";         // written by MapBundleWriter itself
+inline constexpr char kScene[] = "scene.bin";                // cameras, images, points
 inline constexpr char kObservations[] = "observations.bin";  // training data; not for serving
 inline constexpr char kLabelTree[] = "label_tree.bin";
 inline constexpr char kVisibility[] = "visibility.bin";

@@ -1,7 +1,5 @@
 #include "map/map_bundle.h"
 
-#include "map/map_blobs.h"
-
 #include <fcntl.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
@@ -13,6 +11,7 @@
 #include <random>
 #include <system_error>
 
+#include "map/map_blobs.h"
 #include "util/check.h"
 #include "util/sha256.h"
 

@@ -9,8 +9,8 @@
 #include <limits>
 #include <utility>
 
-#include "pose/opencv_adapter.h"
 #include "pose/absolute_pose_estimator.h"
+#include "pose/opencv_adapter.h"
 #include "pose/ransac.h"
 #include "util/check.h"
 #include "util/random.h"
@@ -56,7 +56,8 @@ SolverOutcome RunLoRansacSolver(std::vector<NormalizedCorrespondence> correspond
 
 SolverOutcome RunOpenCvUsacSolver(const std::vector<NormalizedCorrespondence>& correspondences,
                                   double focal_length_px, const AbsolutePoseOptions& options) {
-  const OpenCvUsacResult usac = EstimatePoseWithOpenCvUsac(correspondences, focal_length_px, options);
+  const OpenCvUsacResult usac =
+      EstimatePoseWithOpenCvUsac(correspondences, focal_length_px, options);
   SolverOutcome outcome;
   outcome.found = usac.found;
   outcome.cam_from_world = usac.cam_from_world;
@@ -176,8 +177,9 @@ void AbsolutePoseOptions::Check() const {
                          max_iterations);
   }
   if (stop_sampling_past_inliers < 0) {
-    ThrowInvalidArgument("AbsolutePoseOptions.stop_sampling_past_inliers is {}, must be >= 0 (0: off)",
-                         stop_sampling_past_inliers);
+    ThrowInvalidArgument(
+        "AbsolutePoseOptions.stop_sampling_past_inliers is {}, must be >= 0 (0: off)",
+        stop_sampling_past_inliers);
   }
   if (!(confidence > 0.0 && confidence <= 1.0)) {
     ThrowInvalidArgument("AbsolutePoseOptions.confidence is {}, must be in (0, 1]", confidence);

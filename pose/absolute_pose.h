@@ -17,8 +17,8 @@
 #include <vector>
 
 #include "geometry/camera.h"
-#include "pose/pose_refinement.h"
 #include "geometry/rigid3d.h"
+#include "pose/pose_refinement.h"
 
 namespace hscloc {
 

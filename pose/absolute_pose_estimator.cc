@@ -25,7 +25,8 @@ P3PSolutions AbsolutePoseEstimator::FitMinimal(const std::array<int, kSampleSize
   return SolveP3P(rays_in_cam, points_in_world);
 }
 
-Score AbsolutePoseEstimator::ScorePose(const Rigid3d& cam_from_world, const Score& to_beat, bool sequential_test) {
+Score AbsolutePoseEstimator::ScorePose(const Rigid3d& cam_from_world, const Score& to_beat,
+                                       bool sequential_test) {
   const Eigen::Matrix3d rotation = cam_from_world.rotation.toRotationMatrix();
   double log_likelihood_ratio = 0.0;
   Score score;

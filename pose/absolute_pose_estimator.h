@@ -57,5 +57,4 @@ class AbsolutePoseEstimator {
   SequentialTest test_;
 };
 
-
 }  // namespace hscloc

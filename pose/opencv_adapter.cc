@@ -1,12 +1,11 @@
 #include "pose/opencv_adapter.h"
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <opencv2/calib3d.hpp>
 
 #include "util/random.h"
-
-#include <Eigen/Geometry>
 
 namespace hscloc {
 

@@ -44,7 +44,8 @@ struct RansacOutcome {
 
 // Samples needed to draw and accept one all-inlier sample with the given confidence (Fischler and
 // Bolles, with the acceptance of the verification as in Chum and Matas).
-inline int RequiredIterations(double good_sample_probability, double confidence, int max_iterations) {
+inline int RequiredIterations(double good_sample_probability, double confidence,
+                              int max_iterations) {
   if (good_sample_probability >= 1.0) return 0;
   if (confidence >= 1.0 || good_sample_probability <= 0.0) return max_iterations;
   const double required = std::log1p(-confidence) / std::log1p(-good_sample_probability);

@@ -38,5 +38,4 @@ class SequentialTest {
   double wrong_checked_ = 0.0;
 };
 
-
 }  // namespace hscloc

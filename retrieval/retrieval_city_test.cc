@@ -6,9 +6,9 @@
 #include <iostream>
 #include <string>
 
-#include "synthetic/synthetic_city.h"
 #include "retrieval/global_index.h"
 #include "retrieval/vlad.h"
+#include "synthetic/synthetic_city.h"
 #include "util/parallel.h"
 
 namespace hscloc {

@@ -120,7 +120,8 @@ inline bool NearVector(const Vector& expected, const Vector& actual, double rela
 
 // Field by field, naming the first difference; doubles equal to within `relative` (0: exactly).
 inline ::testing::AssertionResult SameReconstruction(const Reconstruction& expected,
-                                              const Reconstruction& actual, double relative) {
+                                                     const Reconstruction& actual,
+                                                     double relative) {
   const auto differ = [](auto&&... what) {
     return ::testing::AssertionFailure() << fmt::format(what...);
   };

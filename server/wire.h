@@ -6,8 +6,8 @@
 #include <cstdint>
 #include <string>
 
-#include "proto/hscloc.pb.h"
 #include "localization/localizer.h"
+#include "proto/hscloc.pb.h"
 
 namespace hscloc {
 

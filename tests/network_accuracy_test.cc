@@ -12,10 +12,10 @@
 #include <sstream>
 #include <unordered_map>
 
-#include "scene/feature_io.h"
-#include "model/network.h"
-#include "synthetic/synthetic_city.h"
 #include "localization/localization_map.h"
+#include "model/network.h"
+#include "scene/feature_io.h"
+#include "synthetic/synthetic_city.h"
 #include "util/parallel.h"
 #include "util/testing.h"
 

@@ -5,8 +5,8 @@
 #include <memory>
 #include <numeric>
 
-#include "map/map_bundle.h"
 #include "localization/localization_map.h"
+#include "map/map_bundle.h"
 #include "tools/commands.h"
 
 namespace hscloc {

@@ -55,7 +55,8 @@ int RunLocalize(LocalizeArguments& arguments) {
       Localizer::FromBundle(arguments.map_dir, options, ParseComputeDevice(arguments.device));
   std::cerr << fmt::format("loaded {} in {}\n", arguments.map_dir,
                            FormatDuration(timer.ElapsedSeconds()));
-  if (arguments.run.resume) std::cerr << fmt::format("resuming into {}\n", arguments.run.out.string());
+  if (arguments.run.resume)
+    std::cerr << fmt::format("resuming into {}\n", arguments.run.out.string());
   const QueryListRunSummary summary =
       RunQueryList(localizer, queries, *features,
                    global_descriptors.empty() ? nullptr : &global_descriptors, arguments.run);
@@ -129,7 +130,8 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
   command->add_option("--device", arguments->device, "cpu or cuda")
       ->check(CLI::IsMember({"cpu", "cuda"}))
       ->capture_default_str();
-  command->add_option("--threads", arguments->run.num_threads, "Queries in parallel (0: all cores)");
+  command->add_option("--threads", arguments->run.num_threads,
+                      "Queries in parallel (0: all cores)");
   command->add_flag("--resume", arguments->run.resume,
                     "Keep the queries already in --out and localize the rest");
   command->callback([&run, arguments] { run = [arguments] { return RunLocalize(*arguments); }; });

@@ -6,9 +6,9 @@
 #include <utility>
 #include <vector>
 
+#include "localization/localization_map.h"
 #include "model/network.h"
 #include "model/trainer.h"
-#include "localization/localization_map.h"
 #include "tools/commands.h"
 #include "util/check.h"
 #include "util/timer.h"
