@@ -8,11 +8,13 @@
 #include <map>
 #include <thread>
 
-#include "scene/feature_io.h"
-#include "localization/pose_evaluation.h"
-#include "scene/query_io.h"
-#include "model/trainer.h"
+#include "localization/ablation.h"
 #include "localization/map_builder.h"
+#include "localization/pose_evaluation.h"
+#include "localization/query_runner.h"
+#include "model/trainer.h"
+#include "scene/feature_io.h"
+#include "scene/query_io.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -32,11 +34,9 @@ QuerySet ReadQuerySet(const fs::path& list, const FeatureReader& features,
   QuerySet set;
   std::unordered_map<std::string, Rigid3d> truth;
   for (const NamedPose& pose : ReadPoses(ground_truth)) truth[pose.name] = pose.cam_from_world;
-  for (const QueryWithIntrinsics& entry : ReadQueryList(list)) {
-    ImageFeatures image = features.Read(entry.name);
-    set.queries.push_back({entry.name, entry.camera, std::move(image.keypoints),
-                           std::move(image.descriptors), std::nullopt});
-    set.ground_truth.push_back({entry.name, truth.at(entry.name)});
+  set.queries = LoadQueries(list, features);
+  for (const LocalizationQuery& query : set.queries) {
+    set.ground_truth.push_back({query.name, truth.at(query.name)});
   }
   return set;
 }
@@ -52,29 +52,31 @@ RunSummary LocalizeAll(const Localizer& localizer, const LocalizerOptions& optio
                        const QuerySet& set, const std::string& condition) {
   RunSummary summary;
   std::vector<NamedPose> estimates;
+  StageTimingAccumulator timings;
   for (const LocalizationQuery& query : set.queries) {
     PoseResult result = localizer.Localize(query, options);
     if (result.success) estimates.push_back({query.name, result.cam_from_world});
-    const StageTimings& t = result.timings;
-    summary.mean_timings.retrieval_ms += t.retrieval_ms / set.queries.size();
-    summary.mean_timings.match_ms += t.match_ms / set.queries.size();
-    summary.mean_timings.visibility_ms += t.visibility_ms / set.queries.size();
-    summary.mean_timings.pose_ms += t.pose_ms / set.queries.size();
-    summary.mean_timings.total_ms += t.total_ms / set.queries.size();
+    timings.Add(result.timings);
     for (const LocalizationCandidate& candidate : result.candidates) {
       summary.mean_candidates_evaluated += candidate.evaluated / double(set.queries.size());
     }
     summary.results.push_back(std::move(result));
   }
+  summary.mean_timings = timings.Mean();
   summary.accuracy = SummarizeAccuracy(condition, ComputePoseErrors(set.ground_truth, estimates),
                                        AachenThresholds());
   return summary;
 }
 
-// Sum of the localized fractions over the three thresholds: one number to order ablations by.
-double Score(const RunSummary& summary) {
+// Sum of the localized fractions over the thresholds and the conditions: one number to order
+// ablations by.
+double Score(const AblationResults& results, const std::string& variant) {
   double score = 0;
-  for (const double fraction : summary.accuracy.localized_fraction) score += fraction;
+  for (const std::string& condition : results.conditions) {
+    for (const double fraction : results.At(variant, condition).accuracy.localized_fraction) {
+      score += fraction;
+    }
+  }
   return score;
 }
 
@@ -108,6 +110,15 @@ class SmallCityLocalizerTest : public ::testing::Test {
 
   static const Localizer& localizer() { return *localizer_; }
   static const QuerySet& Set(const std::string& condition) { return sets_.at(condition); }
+  // The day and night sets as the ablation runner takes them, and their ground truth.
+  static std::vector<AblationQuerySet> AblationSets() {
+    return {{"day", Set("day").queries}, {"night", Set("night").queries}};
+  }
+  static std::vector<NamedPose> GroundTruth() {
+    std::vector<NamedPose> truth = Set("day").ground_truth;
+    truth.insert(truth.end(), Set("night").ground_truth.begin(), Set("night").ground_truth.end());
+    return truth;
+  }
 
  private:
   static Localizer* localizer_;
@@ -119,7 +130,7 @@ std::map<std::string, QuerySet> SmallCityLocalizerTest::sets_;
 std::string TimingLine(const std::string& name, const RunSummary& run) {
   const StageTimings& t = run.mean_timings;
   return fmt::format(
-      "{:<28} retrieval {:6.2f}  matching {:7.2f}  visibility {:5.2f}  pose {:6.2f}  total {:7.2f} "
+      "{:<28} retrieval {:6.2f}  match {:7.2f}  visibility {:5.2f}  pose {:6.2f}  total {:7.2f} "
       "ms\n",
       name, t.retrieval_ms, t.match_ms, t.visibility_ms, t.pose_ms, t.total_ms);
 }
@@ -145,35 +156,98 @@ TEST_F(SmallCityLocalizerTest, DayQueriesReachNinetyPercentAndTheBaselineIsRepor
   EXPECT_GE(rows[2].localized_fraction[0], 0.9);
 }
 
-TEST_F(SmallCityLocalizerTest, AblationsMoveInTheExpectedDirection) {
-  LocalizerOptions full;
-  LocalizerOptions top1;
-  top1.top_k = 1;
-  LocalizerOptions no_image_id = top1;
-  no_image_id.use_image_id = false;
-  LocalizerOptions no_filter;
-  no_filter.visibility_filter = false;
-  LocalizerOptions masked;
-  masked.visibility_masked_decoding = true;
-  std::map<std::string, double> scores;
-  std::vector<ConditionAccuracy> rows;
-  for (const auto& [name, options] :
-       std::vector<std::pair<std::string, LocalizerOptions>>{{"top-10, filter", full},
-                                                             {"top-1, filter", top1},
-                                                             {"top-1, no image id", no_image_id},
-                                                             {"top-10, no filter", no_filter},
-                                                             {"top-10, masked decoding", masked}}) {
-    for (const char* condition : {"day", "night"}) {
-      RunSummary run = LocalizeAll(localizer(), options, Set(condition), condition);
-      scores[name] += Score(run);
-      run.accuracy.condition = fmt::format("{}: {}", name, condition);
-      rows.push_back(run.accuracy);
-    }
+// Matches of the winning candidate to points its image does not observe.
+size_t InvisibleMatches(const Localizer& localizer, const PoseResult& result) {
+  if (!result.success) return 0;
+  const uint32_t image = result.candidates[result.best_candidate].image_index;
+  size_t count = 0;
+  for (const uint32_t point : result.match_points) {
+    count += !localizer.map().visibility().IsVisible(image, point);
   }
-  std::cout << FormatAccuracyTable(rows);
-  EXPECT_GE(scores["top-10, filter"], scores["top-1, filter"]);
-  EXPECT_GE(scores["top-1, filter"], scores["top-1, no image id"]);
-  EXPECT_GE(scores["top-10, filter"], scores["top-10, no filter"]);
+  return count;
+}
+
+// Each switch changes what it acts on, so that one the Localizer ignored fails here, and the
+// accuracy moves as the paper reports.
+TEST_F(SmallCityLocalizerTest, AblationsMoveInTheExpectedDirection) {
+  std::vector<AblationVariant> variants = StandardAblationVariants();
+  const std::string paper = variants[0].name;
+  const std::string top1 = variants[1].name;
+  const std::string no_filter = variants[2].name;
+  const std::string masked = variants[4].name;
+  AblationVariant no_image_id = variants[1];
+  no_image_id.name = "top-1, no image id";
+  no_image_id.options.use_image_id = false;
+  AblationVariant masked_no_filter = variants[4];
+  masked_no_filter.name = "top-10, masked decoding, no filter";
+  masked_no_filter.options.visibility_filter = false;
+  variants.push_back(no_image_id);
+  variants.push_back(masked_no_filter);
+  AblationOptions options;
+  options.keep_results = true;
+  const AblationResults results =
+      RunAblations(localizer(), AblationSets(), GroundTruth(), variants, options);
+  std::cout << FormatAblationTable(results);
+
+  for (const std::string& condition : results.conditions) {
+    SCOPED_TRACE(condition);
+    const AblationCell& full = results.At(paper, condition);
+    const AblationCell& one = results.At(top1, condition);
+    const AblationCell& unfiltered = results.At(no_filter, condition);
+    const AblationCell& one_without_id = results.At(no_image_id.name, condition);
+    const AblationCell& masked_cell = results.At(masked, condition);
+    const AblationCell& masked_unfiltered = results.At(masked_no_filter.name, condition);
+    // top_k: ten candidates retrieved and posed, or retrieval's first alone.
+    EXPECT_DOUBLE_EQ(full.mean_candidates, 10);
+    EXPECT_DOUBLE_EQ(full.mean_candidates_evaluated, 10);
+    EXPECT_DOUBLE_EQ(one.mean_candidates, 1);
+    size_t invisible_without_filter = 0;
+    size_t changed_without_image_id = 0;
+    for (size_t q = 0; q < full.results.size(); ++q) {
+      SCOPED_TRACE(Set(condition).queries[q].name);
+      ASSERT_EQ(one.results[q].candidates.size(), 1u);
+      EXPECT_EQ(one.results[q].candidates[0].image_index,
+                full.results[q].candidates[0].image_index);
+      // The filter keeps no match to a point the image does not see; off, such matches stay.
+      EXPECT_EQ(InvisibleMatches(localizer(), full.results[q]), 0u);
+      invisible_without_filter += InvisibleMatches(localizer(), unfiltered.results[q]);
+      // Masked decoding predicts only points the image observes: the filter finds nothing to
+      // drop, and a keypoint whose unmasked prediction the filter dropped gets a visible point.
+      // (Retrieval may return a database image that observes no point: masking has nothing to
+      // restrict to there, and the filter keeps nothing.)
+      EXPECT_EQ(InvisibleMatches(localizer(), masked_unfiltered.results[q]), 0u);
+      for (size_t k = 0; k < full.results[q].candidates.size(); ++k) {
+        const int kept = full.results[q].candidates[k].num_matches;
+        const int masked_kept = masked_cell.results[q].candidates[k].num_matches;
+        EXPECT_GE(unfiltered.results[q].candidates[k].num_matches, kept) << k;
+        EXPECT_GE(masked_kept, kept) << k;
+        const uint32_t image = full.results[q].candidates[k].image_index;
+        if (localizer().map().visibility().NumPointsOfImage(image) == 0) {
+          EXPECT_EQ(masked_kept, 0) << k;
+        } else {
+          EXPECT_EQ(masked_unfiltered.results[q].candidates[k].num_matches, masked_kept) << k;
+        }
+      }
+      // The image id conditions what the network predicts.
+      changed_without_image_id +=
+          one_without_id.results[q].match_points != one.results[q].match_points;
+    }
+    EXPECT_GT(invisible_without_filter, 0u);
+    EXPECT_GT(unfiltered.mean_matches, full.mean_matches);
+    EXPECT_GT(masked_cell.mean_matches, full.mean_matches);
+    EXPECT_GT(changed_without_image_id, full.results.size() / 2);
+  }
+  EXPECT_GE(Score(results, paper), Score(results, top1));
+  EXPECT_GE(Score(results, top1), Score(results, no_image_id.name));
+  EXPECT_GE(Score(results, paper), Score(results, no_filter));
+  // Masked decoding keeps the paper's accuracy within a query or two per condition (measured:
+  // day 98%, night 96% within (0.25 m, 2 deg), against 100% and 100%); it is not the default.
+  for (const std::string& condition : results.conditions) {
+    EXPECT_GE(results.At(masked, condition).accuracy.localized_fraction[0],
+              results.At(paper, condition).accuracy.localized_fraction[0] - 0.1)
+        << condition;
+    EXPECT_GE(results.At(masked, condition).accuracy.localized_fraction[0], 0.85) << condition;
+  }
 }
 
 TEST_F(SmallCityLocalizerTest, EarlyExitPosesFewerCandidates) {
@@ -300,12 +374,18 @@ TEST(LocalizerTest, MatcherNamesRoundTrip) {
 // Real photographs: a map built from the set's COLMAP model and database.db SIFT features, a
 // network trained on it, and the held-out queries localized from their database.db features.
 
+// Per matcher, the queries within (0.25 m, 2 deg), and those whose position error is at most
+// `tolerance_m` above that of COLMAP's image_registrator on the same query.
+struct RealSetCounts {
+  int within_fine = 0;
+  int near_colmap = 0;
+};
+
 // Localizes the set's queries with the network and with the nearest-neighbour baseline, prints
-// every error beside COLMAP's image_registrator, and returns, per matcher, how many queries came
-// within (0.25 m, 2 deg).
-std::map<Matcher, int> LocalizeRealSet(
+// every error beside COLMAP's image_registrator, and counts them per matcher.
+std::map<Matcher, RealSetCounts> LocalizeRealSet(
     const fs::path& data, int64_t iterations,
-    const std::vector<std::pair<std::string, double>>& colmap_position_errors) {
+    const std::vector<std::pair<std::string, double>>& colmap_position_errors, double tolerance_m) {
   testing::TempDir temp;
   MapBuildOptions build_options;
   build_options.show_progress = false;
@@ -326,12 +406,16 @@ std::map<Matcher, int> LocalizeRealSet(
                            data.filename().string(), map->scene().NumImages(),
                            map->scene().NumPoints(), map->scene().NumObservations(),
                            training.iterations, training.seconds);
-  std::map<Matcher, int> within;
+  std::map<Matcher, RealSetCounts> counts;
   for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
     LocalizerOptions options;
     options.matcher = matcher;
     const RunSummary run = LocalizeAll(localizer, options, set, MatcherName(matcher));
-    EXPECT_EQ(set.queries.size(), colmap_position_errors.size());
+    if (set.queries.size() != colmap_position_errors.size()) {
+      ADD_FAILURE() << set.queries.size() << " queries, " << colmap_position_errors.size()
+                    << " COLMAP errors";
+      return counts;
+    }
     for (size_t i = 0; i < set.queries.size(); ++i) {
       const QueryPoseError& error = run.accuracy.errors[i];
       std::cout << fmt::format(
@@ -340,34 +424,42 @@ std::map<Matcher, int> LocalizeRealSet(
           MatcherName(matcher), set.queries[i].name, error.position, error.rotation_deg,
           run.results[i].num_inliers, colmap_position_errors[i].second);
       EXPECT_EQ(set.queries[i].name, colmap_position_errors[i].first);
-      within[matcher] += error.position <= 0.25 && error.rotation_deg <= 2.0;
+      counts[matcher].within_fine += error.position <= 0.25 && error.rotation_deg <= 2.0;
+      counts[matcher].near_colmap +=
+          error.position <= colmap_position_errors[i].second + tolerance_m;
     }
   }
-  return within;
+  return counts;
 }
 
+// Fountain's queries come within 5 mm of COLMAP's registration (1 to 3 mm from the ground truth).
 TEST(RealDataLocalizerTest, FountainQueriesWithinQuarterMetreAndTwoDegrees) {
   HSCLOC_REQUIRE_REAL_DATA(data, "fountain-P11");
-  std::map<Matcher, int> within =
-      LocalizeRealSet(data, 600, {{"0003.jpg", 0.0025}, {"0007.jpg", 0.0016}});
-  EXPECT_EQ(within[Matcher::kNetwork], 2);
-  EXPECT_EQ(within[Matcher::kNearestNeighbor], 2);
+  std::map<Matcher, RealSetCounts> counts =
+      LocalizeRealSet(data, 600, {{"0003.jpg", 0.0025}, {"0007.jpg", 0.0016}}, 0.005);
+  for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
+    EXPECT_EQ(counts[matcher].within_fine, 2) << MatcherName(matcher);
+    EXPECT_EQ(counts[matcher].near_colmap, 2) << MatcherName(matcher);
+  }
 }
 
 // Lund's map has 3.2 observations per point, and its SfM pseudo ground truth is folded between
-// 15.jpg and 16.jpg (see the set's README). The network localizes all 5 queries within
-// (0.25 m, 2 deg) here, 25.jpg at 0.24 m, where COLMAP's own registration is 0.19 m and nearest
-// neighbour 0.32 m from the pseudo ground truth; the check leaves that one query its slack.
+// 15.jpg and 16.jpg (see the set's README). The network localizes 4 or 5 of the 5 queries within
+// (0.25 m, 2 deg) and within 5 cm of COLMAP's own error; 25.jpg is the hard one (COLMAP 0.19 m,
+// nearest neighbour 0.32 m, the network 0.24 m or no pose), and the checks leave it its slack.
 TEST(RealDataLocalizerTest, LundQueriesAgainstColmap) {
   HSCLOC_REQUIRE_REAL_DATA(data, "lund");
-  std::map<Matcher, int> within = LocalizeRealSet(data, 400,
-                                                  {{"05.jpg", 0.0408},
-                                                   {"10.jpg", 0.0162},
-                                                   {"15.jpg", 0.0137},
-                                                   {"20.jpg", 0.0532},
-                                                   {"25.jpg", 0.1947}});
-  EXPECT_GE(within[Matcher::kNetwork], 4);
-  EXPECT_GE(within[Matcher::kNearestNeighbor], 4);
+  std::map<Matcher, RealSetCounts> counts = LocalizeRealSet(data, 400,
+                                                            {{"05.jpg", 0.0408},
+                                                             {"10.jpg", 0.0162},
+                                                             {"15.jpg", 0.0137},
+                                                             {"20.jpg", 0.0532},
+                                                             {"25.jpg", 0.1947}},
+                                                            0.05);
+  for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
+    EXPECT_GE(counts[matcher].within_fine, 4) << MatcherName(matcher);
+    EXPECT_GE(counts[matcher].near_colmap, 4) << MatcherName(matcher);
+  }
 }
 
 }  // namespace

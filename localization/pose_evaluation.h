@@ -71,9 +71,4 @@ std::vector<ConditionAccuracy> SummarizeAccuracyByCondition(
 //   condition  queries  (0.25 m, 2 deg)  (0.5 m, 5 deg)  (5 m, 10 deg)  median position / rotation
 std::string FormatAccuracyTable(const std::vector<ConditionAccuracy>& accuracies);
 
-// A self-contained SVG: the cumulative share of queries against position error (log scale, left)
-// and rotation error (log scale, right), one curve per condition, thresholds marked.
-std::string CumulativeErrorSvg(const std::vector<ConditionAccuracy>& accuracies,
-                               const std::string& title);
-
 }  // namespace hscloc

@@ -107,27 +107,5 @@ TEST(PoseEvaluationTest, RejectsResultsThatDoNotMatchTheQueries) {
               HasSubstr("share the basename"));
 }
 
-TEST(PoseEvaluationTest, PlotHasACurvePerCondition) {
-  Random random(6);
-  const std::vector<NamedPose> truth = RandomTruth(8, random);
-  std::vector<NamedPose> results;
-  for (const NamedPose& pose : truth) {
-    results.push_back({pose.name, Perturbed(pose.cam_from_world, 0.2, 1, random)});
-  }
-  const std::vector<QueryPoseError> errors = ComputePoseErrors(truth, results);
-  const std::vector<ConditionAccuracy> accuracies = {
-      SummarizeAccuracy("day", {errors.begin(), errors.begin() + 4}, AachenThresholds()),
-      SummarizeAccuracy("night", {errors.begin() + 4, errors.end()}, AachenThresholds())};
-  const std::string svg = CumulativeErrorSvg(accuracies, "test");
-  EXPECT_THAT(svg, ::testing::StartsWith("<svg"));
-  EXPECT_THAT(svg, HasSubstr("night (4 queries)"));
-  size_t curves = 0;
-  for (size_t at = svg.find("<polyline"); at != std::string::npos;
-       at = svg.find("<polyline", at + 1)) {
-    ++curves;
-  }
-  EXPECT_EQ(curves, 4u);  // two conditions x (position, rotation)
-}
-
 }  // namespace
 }  // namespace hscloc

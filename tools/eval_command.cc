@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "localization/pose_evaluation.h"
+#include "report/error_curves.h"
 #include "scene/query_io.h"
 #include "tools/commands.h"
 #include "util/check.h"
