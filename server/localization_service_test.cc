@@ -317,6 +317,11 @@ TEST_F(LocalizationServiceTest, StopDrainsAcceptedRequestsAndRefusesLaterOnes) {
   ASSERT_FALSE(refused_probe.empty()) << "no probe saw the server stopping";
   const std::string late = "late" + refused_probe.substr(5);
   while (!statuses.count(late)) ASSERT_TRUE(receive()) << late;
+  // The four accepted requests were answered before the server stopped; their replies may still
+  // wait in this socket.
+  for (int i = 0; i < 4; ++i) {
+    while (!statuses.count(std::to_string(i))) ASSERT_TRUE(receive()) << i;
+  }
   stopper.join();
   for (int i = 0; i < 4; ++i) EXPECT_EQ(statuses[std::to_string(i)], wire::OK) << i;
   EXPECT_EQ(statuses[late], wire::UNAVAILABLE);

@@ -55,15 +55,13 @@ int RunLocalize(LocalizeArguments& arguments) {
       Localizer::FromBundle(arguments.map_dir, options, ParseComputeDevice(arguments.device));
   std::cerr << fmt::format("loaded {} in {}\n", arguments.map_dir,
                            FormatDuration(timer.ElapsedSeconds()));
-  if (arguments.run.resume)
-    std::cerr << fmt::format("resuming into {}\n", arguments.run.out.string());
   const QueryListRunSummary summary =
       RunQueryList(localizer, queries, *features,
                    global_descriptors.empty() ? nullptr : &global_descriptors, arguments.run);
 
   const StageTimings mean = summary.timings.Mean();
-  if (summary.num_skipped > 0) {
-    std::cout << fmt::format("{} of {} queries were already in {}\n", summary.num_skipped,
+  if (arguments.run.resume) {
+    std::cout << fmt::format("resuming: {} of {} queries already in {}\n", summary.num_skipped,
                              summary.num_queries, arguments.run.out.string());
   }
   std::cout << fmt::format(
