@@ -5,6 +5,7 @@
 #undef Eigen
 
 #include <algorithm>
+#include <limits>
 
 #include "model/dense_kernels.h"
 
@@ -76,6 +77,22 @@ void ModulateElu(const float* source, const int64_t* source_rows, const float* g
 }
 
 void EluInPlace(float* values, int64_t count) { ForEachPacket(values, count, values, Elu); }
+
+void NodeLogits(const float* projected, int64_t m, int64_t r, const float* rows, int64_t count,
+                int64_t out_columns, float* out) {
+  using StridedMap = E::Map<const RowMajorMatrix, 0, E::OuterStride<>>;
+  const ConstMatrixMap input(projected, m, r);
+  const StridedMap weights(rows, count, r, E::OuterStride<>(r + 1));
+  const E::Map<const E::RowVectorXf, 0, E::InnerStride<>> biases(rows + r, count,
+                                                                 E::InnerStride<>(r + 1));
+  E::Map<RowMajorMatrix, 0, E::OuterStride<>> output(out, m, count, E::OuterStride<>(out_columns));
+  output.noalias() = input * weights.transpose();
+  output.rowwise() += biases;
+  for (int64_t i = 0; i < m; ++i) {
+    std::fill(out + i * out_columns + count, out + (i + 1) * out_columns,
+              -std::numeric_limits<float>::infinity());
+  }
+}
 
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns) {
   for (int64_t r = 0; r < rows; ++r) {

@@ -27,6 +27,12 @@ void ModulateElu(const float* source, const int64_t* source_rows, const float* g
 
 void EluInPlace(float* values, int64_t count);
 
+// Logits of one parent's children from per-node output rows: for i < m and c < count,
+// out[i * out_columns + c] = <projected[i, :r], rows[c, :r]> + rows[c, r] (rows of r + 1 floats:
+// weights, then the bias); columns count .. out_columns - 1 are set to -infinity (no such child).
+void NodeLogits(const float* projected, int64_t m, int64_t r, const float* rows, int64_t count,
+                int64_t out_columns, float* out);
+
 // Each of `rows` rows of `columns` values replaced by its softmax.
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns);
 

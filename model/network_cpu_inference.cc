@@ -35,13 +35,13 @@ void ForEachRowBlock(int64_t rows, const std::function<void(int64_t begin, int64
 // Per-thread buffers of one row block, kept between blocks and calls: fresh allocations of this
 // size would each be zeroed and page-faulted in.
 struct BlockScratch {
-  std::vector<float> hidden, embedding, generator, features, linear, logits;
+  std::vector<float> hidden, embedding, generator, features, linear, logits, projected;
   std::vector<std::vector<float>> gammas, betas;
   std::vector<int32_t> run_of_row;
   std::vector<int64_t> descriptor_of_row;
 
   void Reserve(int64_t rows, int64_t trunk_channels, int64_t channels, int64_t embedding_dim,
-               int64_t branching, int layers) {
+               int64_t branching, int layers, int64_t projected_dim) {
     const auto grow = [](auto& buffer, int64_t size) {
       if (static_cast<int64_t>(buffer.size()) < size) buffer.resize(size);
     };
@@ -51,6 +51,7 @@ struct BlockScratch {
     grow(features, rows * channels);
     grow(linear, rows * channels);
     grow(logits, rows * branching);
+    grow(projected, rows * projected_dim);
     grow(run_of_row, rows);
     grow(descriptor_of_row, rows);
     if (static_cast<int>(gammas.size()) < layers) {
@@ -79,6 +80,7 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
   const int64_t h = network.options().trunk_channels;
   const int64_t e = network.options().embedding_dim;
   const int64_t branching = s.branching;
+  const int64_t r_dim = network.options().node_output_dim;
   PointPredictions result = AllocatePredictions(k, n, s.levels);
   if (rows == 0) return result;
 
@@ -88,11 +90,11 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
   for (int64_t i = 0; i < n; ++i) scaled.row(i) /= std::max(scaled.row(i).norm(), 1e-12f);
   float current_scale = 1;
   std::unique_ptr<NodeVisibilityMasks> masks;
-  std::vector<int64_t> parent_node;
   if (visibility_mask != nullptr) {
     masks = std::make_unique<NodeVisibilityMasks>(image_indices, tree, *visibility_mask);
-    parent_node.assign(rows, 0);
   }
+  // The tree node of every row's label prefix (-1 once a path leaves the tree).
+  std::vector<int64_t> parent_node(rows, 0);
 
   uint8_t* labels = result.labels.data();
   float* confidences = result.confidences.data();
@@ -105,7 +107,7 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
       // Every parent has a single child: label 0 with certainty, no network to run.
       for (int64_t r = 0; r < rows; ++r) {
         labels[r * s.levels + depth] = 0;
-        if (masks) parent_node[r] = ChildNode(parent_node[r], 0, tree);
+        parent_node[r] = ChildNode(parent_node[r], 0, tree);
       }
       result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
       continue;
@@ -121,7 +123,7 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
     ForEachRowBlock(n, [&](int64_t begin, int64_t end) {
       const int64_t m = end - begin;
       thread_local BlockScratch scratch;
-      scratch.Reserve(m, h, c, e, branching, layers);
+      scratch.Reserve(m, h, c, e, branching, layers, r_dim);
       dk::Linear(scaled.data() + begin * d, m, d, w.trunk1_weight, w.trunk1_bias, h, true,
                  scratch.hidden.data());
       dk::Linear(scratch.hidden.data(), m, h, w.trunk2_weight, w.trunk2_bias, c, true,
@@ -145,7 +147,7 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
     ForEachRowBlock(rows, [&](int64_t begin, int64_t end) {
       const int64_t m = end - begin;
       thread_local BlockScratch scratch;
-      scratch.Reserve(m, h, c, e, branching, layers);
+      scratch.Reserve(m, h, c, e, branching, layers, r_dim);
       int64_t runs = 0;
       for (int64_t i = begin; i < end; ++i) {
         if (i == begin || keyed_rows[i].first != keyed_rows[i - 1].first) {
@@ -153,7 +155,11 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
           const int64_t r = keyed_rows[i].second;
           auto sum = Eigen::Map<Eigen::VectorXf>(scratch.embedding.data() + runs * e, e);
           sum = Eigen::Map<const Eigen::VectorXf>(w.image_embedding + image_indices[r / n] * e, e);
-          for (int column = 0; column < depth; ++column) {
+          if (w.node_embedding != nullptr) {
+            const int64_t row = std::max<int64_t>(parent_node[r] - w.node_embedding_first, 0);
+            sum += Eigen::Map<const Eigen::VectorXf>(w.node_embedding + row * e, e);
+          }
+          for (int column = 0; column < static_cast<int>(w.label_embeddings.size()); ++column) {
             sum += Eigen::Map<const Eigen::VectorXf>(
                 w.label_embeddings[column] + labels[r * s.levels + column] * e, e);
           }
@@ -182,18 +188,40 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
                         scratch.betas[layer].data(), scratch.run_of_row.data(), m, c,
                         scratch.features.data());
       }
-      dk::Linear(scratch.features.data(), m, c, w.output_weight, w.output_bias, branching, false,
-                 scratch.logits.data());
+      if (w.node_output_dim > 0) {
+        // Each run shares its parent: its children's rows are contiguous in the node table.
+        dk::Linear(scratch.features.data(), m, c, w.projection_weight, w.projection_bias, r_dim,
+                   false, scratch.projected.data());
+        for (int64_t i = begin; i < end;) {
+          int64_t run_end = i + 1;
+          while (run_end < end && keyed_rows[run_end].first == keyed_rows[i].first) ++run_end;
+          const int64_t parent = parent_node[keyed_rows[i].second];
+          const int64_t count = parent < 0 ? 0 : tree.NumChildren(static_cast<uint32_t>(parent));
+          const int64_t first =
+              parent < 0 ? 0 : tree.FirstChild(static_cast<uint32_t>(parent)) - w.node_rows_first;
+          dk::NodeLogits(scratch.projected.data() + (i - begin) * r_dim, run_end - i, r_dim,
+                         w.node_rows + first * (r_dim + 1), count, branching,
+                         scratch.logits.data() + (i - begin) * branching);
+          if (count == 0) {
+            std::fill_n(scratch.logits.data() + (i - begin) * branching, (run_end - i) * branching,
+                        0.0f);
+          }
+          i = run_end;
+        }
+      } else {
+        dk::Linear(scratch.features.data(), m, c, w.output_weight, w.output_bias, branching,
+                   false, scratch.logits.data());
+      }
       dk::SoftmaxRowsInPlace(scratch.logits.data(), m, branching);
       for (int64_t i = begin; i < end; ++i) {
         const int64_t r = keyed_rows[i].second;
         const float* probabilities = scratch.logits.data() + (i - begin) * branching;
         const int slot = masks ? masks->SlotOfK(static_cast<size_t>(r / n)) : -1;
-        const int64_t parent = masks ? parent_node[r] : -1;
+        const int64_t parent = parent_node[r];
         const int64_t best = ChooseLabel(probabilities, branching, masks.get(), slot, parent, tree);
         labels[r * s.levels + depth] = static_cast<uint8_t>(best);
         confidences[r] *= probabilities[best];
-        if (masks) parent_node[r] = ChildNode(parent, best, tree);
+        parent_node[r] = ChildNode(parent, best, tree);
       }
     });
     result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());

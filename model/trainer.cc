@@ -12,6 +12,7 @@
 #include <optional>
 
 #include "model/map_bundle.h"
+#include "model/network_decoding.h"
 #include "model/network_module.h"
 #include "util/check.h"
 #include "util/parallel.h"
@@ -37,8 +38,9 @@ void KeepFreedMemoryForReuse() {
   mallopt(M_TOP_PAD, 64 << 20);
 }
 
-// Checkpoint layout version; the network inside carries its own.
-constexpr int64_t kCheckpointVersion = 1;
+// Checkpoint layout version; the network inside carries its own. Version 2 added the lazy Adam
+// state of node output rows and the best network so far.
+constexpr int64_t kCheckpointVersion = 2;
 
 // The training observations in the order the iterations consume them: an endless sequence of
 // permutations, one per epoch, each drawn from its own stream, so that any iteration's batch can
@@ -74,10 +76,27 @@ struct Batch {
   torch::Tensor descriptors;  // [B, D], augmented, not yet normalized
   torch::Tensor images;       // [B]
   torch::Tensor labels;       // [B, levels]
+  // Per level: the parent node of each row [B]; its children's node ids [B, branching] (-1: no
+  // such child; node output rows only); the children its softmax ranges over [B, branching]
+  // (visibility softmax only; undefined: every label).
+  std::vector<torch::Tensor> parent_nodes, child_nodes, allowed;
 };
 
-Batch MakeBatch(const Scene& scene, const LabelTree& tree, const TrainerOptions& options,
-                SampleOrder& order, int64_t iteration, torch::Device device) {
+// What a batch needs of the tree beyond the labels: node visibility per image for the
+// visibility softmax.
+struct BatchContext {
+  const Scene& scene;
+  const LabelTree& tree;
+  const TrainerOptions& options;
+  const NodeVisibilityMasks* masks = nullptr;  // slot = image index
+  bool node_output = false;
+};
+
+Batch MakeBatch(const BatchContext& context, SampleOrder& order, int64_t iteration,
+                torch::Device device) {
+  const Scene& scene = context.scene;
+  const LabelTree& tree = context.tree;
+  const TrainerOptions& options = context.options;
   const int64_t size = options.batch_size;
   const int64_t dim = scene.Dimension();
   const int levels = tree.levels();
@@ -116,11 +135,88 @@ Batch MakeBatch(const Scene& scene, const LabelTree& tree, const TrainerOptions&
       std::copy(path, path + levels, label_data + row * levels);
     }
   });
-  return {descriptors.to(device), images.to(device), labels.to(device)};
+  Batch batch{descriptors.to(device), images.to(device), labels.to(device), {}, {}, {}};
+  const int64_t branching = tree.branching();
+  std::vector<int64_t> node(size, 0);
+  for (int level = 0; level < levels; ++level) {
+    torch::Tensor parents = torch::from_blob(node.data(), {size}, torch::kInt64).clone();
+    torch::Tensor children, allowed;
+    if (tree.LevelHasChoice(level)) {
+      if (context.node_output) children = ChildNodesOf(tree, node.data(), size);
+      if (context.masks != nullptr) {
+        allowed = torch::zeros({size, branching}, torch::kBool);
+        bool* allowed_data = allowed.data_ptr<bool>();
+        for (int64_t row = 0; row < size; ++row) {
+          const uint32_t parent = static_cast<uint32_t>(node[row]);
+          const uint32_t first = tree.FirstChild(parent);
+          const int64_t count = tree.NumChildren(parent);
+          const bool without_image = image_data[row] == static_cast<int64_t>(no_image);
+          for (int64_t c = 0; c < count; ++c) {
+            allowed_data[row * branching + c] =
+                without_image ||
+                context.masks->Contains(static_cast<int>(image_data[row]), first + c);
+          }
+        }
+        allowed = allowed.to(device);
+      }
+      if (children.defined()) children = children.to(device);
+    }
+    batch.parent_nodes.push_back(parents.to(device));
+    batch.child_nodes.push_back(children);
+    batch.allowed.push_back(allowed);
+    for (int64_t row = 0; row < size; ++row) {
+      node[row] = tree.FirstChild(static_cast<uint32_t>(node[row])) + label_data[row * levels + level];
+    }
+  }
+  return batch;
 }
 
-// The learning rate after the halvings whose budget fraction `progress` has reached.
+// Adam on the rows of a table that a step's sparse gradient touches (PyTorch's SparseAdam): the
+// other rows and their moments stay as they are.
+struct LazyAdamTable {
+  torch::Tensor parameter, first_moment, second_moment;
+  int64_t steps = 0;
+
+  void Step(double learning_rate) {
+    const torch::Tensor gradient = parameter.grad();
+    if (!gradient.defined()) return;
+    torch::NoGradGuard no_grad;
+    ++steps;
+    constexpr double kBeta1 = 0.9, kBeta2 = 0.999, kEpsilon = 1e-8;
+    torch::Tensor rows, values;
+    if (gradient.is_sparse()) {
+      const torch::Tensor coalesced = gradient.coalesce();
+      rows = coalesced.indices().select(0, 0);
+      values = coalesced.values();
+    } else {
+      rows = gradient.abs().sum(1).nonzero().squeeze(1);
+      values = gradient.index_select(0, rows);
+    }
+    const torch::Tensor m =
+        first_moment.index_select(0, rows).mul_(kBeta1).add_(values, 1 - kBeta1);
+    const torch::Tensor v =
+        second_moment.index_select(0, rows).mul_(kBeta2).addcmul_(values, values, 1 - kBeta2);
+    first_moment.index_copy_(0, rows, m);
+    second_moment.index_copy_(0, rows, v);
+    const double correction1 = 1 - std::pow(kBeta1, static_cast<double>(steps));
+    const double correction2 = 1 - std::pow(kBeta2, static_cast<double>(steps));
+    const torch::Tensor update =
+        m / (v / correction2).sqrt_().add_(kEpsilon) * (learning_rate / correction1);
+    parameter.index_add_(0, rows, update.neg_());
+    parameter.mutable_grad() = torch::Tensor();
+  }
+};
+
+// The learning rate at `progress` (fraction of the budget) of the schedule.
 double ScheduledLearningRate(const TrainerOptions& options, double progress) {
+  if (options.schedule == LearningRateSchedule::kOneCycle) {
+    const double peak = options.learning_rate;
+    const double warmup = options.warmup_fraction;
+    if (progress < warmup) return peak * (0.1 + 0.9 * progress / warmup);
+    const double t = std::min(1.0, (progress - warmup) / std::max(1e-9, 1 - warmup));
+    const double low = peak * options.final_rate_fraction;
+    return low + (peak - low) * 0.5 * (1 + std::cos(M_PI * t));
+  }
   double rate = options.learning_rate;
   for (const double fraction : options.halving_fractions) {
     if (progress >= fraction) rate *= 0.5;
@@ -171,11 +267,37 @@ struct TrainingState {
   int64_t iteration = 0;
   double seconds_before = 0;
   std::vector<TrainingLogEntry> log;
+  std::vector<HeldOutCheck> checks;
+  // The best network so far on the held-out sample (keep_best), as parameter copies.
+  std::vector<torch::Tensor> best_parameters;
+  int64_t best_iteration = 0;
+  double best_accuracy = -1;
 };
 
+torch::Tensor ChecksToTensor(const std::vector<HeldOutCheck>& checks) {
+  torch::Tensor tensor = torch::zeros({static_cast<int64_t>(checks.size()), 3}, torch::kFloat64);
+  for (size_t i = 0; i < checks.size(); ++i) {
+    double* row = tensor.data_ptr<double>() + i * 3;
+    row[0] = static_cast<double>(checks[i].iteration);
+    row[1] = checks[i].seconds;
+    row[2] = checks[i].point_accuracy;
+  }
+  return tensor;
+}
+
+std::vector<HeldOutCheck> ChecksFromTensor(const torch::Tensor& tensor) {
+  const torch::Tensor cpu = tensor.to(torch::kCPU).to(torch::kFloat64).contiguous();
+  std::vector<HeldOutCheck> checks(cpu.size(0));
+  for (size_t i = 0; i < checks.size(); ++i) {
+    const double* row = cpu.data_ptr<double>() + i * 3;
+    checks[i] = {static_cast<int64_t>(row[0]), row[1], row[2]};
+  }
+  return checks;
+}
+
 void SaveCheckpoint(const std::filesystem::path& path, const Network& network,
-                    torch::optim::Adam& optimizer, const TrainingState& state,
-                    const TrainerOptions& options) {
+                    torch::optim::Adam& optimizer, const std::vector<LazyAdamTable>& lazy,
+                    const TrainingState& state, const TrainerOptions& options) {
   torch::serialize::OutputArchive archive;
   archive.write("checkpoint_version", torch::tensor({kCheckpointVersion}, torch::kInt64));
   torch::serialize::OutputArchive network_archive;
@@ -188,6 +310,17 @@ void SaveCheckpoint(const std::filesystem::path& path, const Network& network,
   archive.write("seconds", torch::tensor({state.seconds_before}, torch::kFloat64));
   archive.write("seed", torch::tensor({static_cast<int64_t>(options.seed)}, torch::kInt64));
   archive.write("log", LogToTensor(state.log, network.shape().levels));
+  archive.write("checks", ChecksToTensor(state.checks));
+  for (size_t i = 0; i < lazy.size(); ++i) {
+    archive.write(fmt::format("lazy_adam{}_m", i), lazy[i].first_moment);
+    archive.write(fmt::format("lazy_adam{}_v", i), lazy[i].second_moment);
+    archive.write(fmt::format("lazy_adam{}_steps", i), torch::tensor({lazy[i].steps}, torch::kInt64));
+  }
+  archive.write("best_iteration", torch::tensor({state.best_iteration}, torch::kInt64));
+  archive.write("best_accuracy", torch::tensor({state.best_accuracy}, torch::kFloat64));
+  for (size_t i = 0; i < state.best_parameters.size(); ++i) {
+    archive.write(fmt::format("best{}", i), state.best_parameters[i]);
+  }
   // A crash while writing must not destroy the previous checkpoint.
   const std::filesystem::path partial = path.string() + ".partial";
   archive.save_to(partial.string());
@@ -218,8 +351,14 @@ void TrainerOptions::Check() const {
   THROW_CHECK_MSG(max_iterations >= 0, "TrainerOptions.max_iterations = {}", max_iterations);
   THROW_CHECK_MSG(max_minutes >= 0 && std::isfinite(max_minutes), "TrainerOptions.max_minutes = {}",
                   max_minutes);
-  THROW_CHECK_MSG(max_iterations > 0 || max_minutes > 0,
-                  "TrainerOptions: max_iterations or max_minutes must be positive");
+  THROW_CHECK_MSG(epochs >= 0 && std::isfinite(epochs), "TrainerOptions.epochs = {}", epochs);
+  THROW_CHECK_MSG(warmup_fraction >= 0 && warmup_fraction < 1,
+                  "TrainerOptions.warmup_fraction = {}", warmup_fraction);
+  THROW_CHECK_MSG(final_rate_fraction > 0 && final_rate_fraction <= 1,
+                  "TrainerOptions.final_rate_fraction = {}", final_rate_fraction);
+  THROW_CHECK_MSG(evaluations >= 0, "TrainerOptions.evaluations = {}", evaluations);
+  THROW_CHECK_MSG(evaluation_observations > 0, "TrainerOptions.evaluation_observations = {}",
+                  evaluation_observations);
   THROW_CHECK_MSG(batch_size > 0, "TrainerOptions.batch_size = {}", batch_size);
   THROW_CHECK_MSG(learning_rate > 0 && std::isfinite(learning_rate),
                   "TrainerOptions.learning_rate = {}", learning_rate);
@@ -248,6 +387,18 @@ std::string TrainingResult::LogCsv() const {
     csv += '\n';
   }
   return csv;
+}
+
+double DefaultEpochs(size_t num_training_observations) {
+  // Small maps need many passes (few views per point); large ones fewer, each pass being longer.
+  const double n = std::max<double>(1, static_cast<double>(num_training_observations));
+  return std::clamp(12.0 * std::sqrt(1e6 / n), 10.0, 400.0);
+}
+
+NetworkOptions DefaultNetworkOptions(size_t num_points) {
+  NetworkOptions options;
+  options.node_output_dim = num_points <= 400000 ? 64 : num_points <= 1000000 ? 32 : 24;
+  return options;
 }
 
 bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed) {
@@ -283,9 +434,23 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
   SetComputeThreads(options.num_threads);
   KeepFreedMemoryForReuse();
   const torch::Device device = TorchDevice(options.device);
-  const NetworkShape shape{static_cast<int>(scene.Dimension()), tree.levels(), tree.branching(),
-                           static_cast<int>(scene.NumImages())};
+  const NetworkShape shape =
+      NetworkShape::ForTree(static_cast<int>(scene.Dimension()), tree,
+                            static_cast<int>(scene.NumImages()));
   const int levels = shape.levels;
+
+  // The budget: iterations, minutes, epochs, or (none given) the automatic epochs.
+  double epochs = options.epochs;
+  if (options.max_iterations == 0 && options.max_minutes == 0 && epochs == 0) {
+    epochs = DefaultEpochs(num_training);
+  }
+  int64_t budget_iterations = options.max_iterations;
+  if (epochs > 0) {
+    const auto from_epochs = static_cast<int64_t>(
+        std::ceil(epochs * static_cast<double>(num_training) / options.batch_size));
+    budget_iterations =
+        budget_iterations > 0 ? std::min(budget_iterations, from_epochs) : from_epochs;
+  }
 
   TrainingState state;
   std::optional<Network> network;
@@ -319,10 +484,17 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
     state.iteration = ReadScalar(checkpoint, "iteration", checkpoint_source);
     torch::Tensor seconds;
     torch::Tensor log;
+    torch::Tensor checks;
+    torch::Tensor best_accuracy;
     checkpoint.read("seconds", seconds);
     checkpoint.read("log", log);
+    checkpoint.read("checks", checks);
+    checkpoint.read("best_accuracy", best_accuracy);
     state.seconds_before = seconds.to(torch::kCPU).item<double>();
     state.log = LogFromTensor(log, levels);
+    state.checks = ChecksFromTensor(checks);
+    state.best_iteration = ReadScalar(checkpoint, "best_iteration", checkpoint_source);
+    state.best_accuracy = best_accuracy.to(torch::kCPU).item<double>();
     spdlog::info("resuming from {} at iteration {}", checkpoint_source, state.iteration);
   } else {
     network.emplace(shape, options.network, options.seed);
@@ -331,31 +503,81 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
 
   HscNet& module = NetworkInternals::Module(*network);
   module->train();
-  torch::optim::Adam optimizer(module->parameters(),
-                               torch::optim::AdamOptions(options.learning_rate));
+  // Node output rows go to lazy Adam (sparse gradients), everything else to dense Adam.
+  std::vector<torch::Tensor> dense_parameters;
+  std::vector<LazyAdamTable> lazy;
+  std::vector<const torch::Tensor*> sparse_tables;
+  for (Level& level : module->levels) {
+    level->SetSparseNodeRows(options.sparse_node_updates && level->HasNodeOutput());
+  }
+  for (const auto& item : module->named_parameters()) {
+    const bool node_rows = item.key().find("node_rows") != std::string::npos;
+    if (node_rows && options.sparse_node_updates) {
+      lazy.push_back({item.value(), torch::zeros_like(item.value()),
+                      torch::zeros_like(item.value()), 0});
+    } else {
+      dense_parameters.push_back(item.value());
+    }
+  }
+  torch::optim::Adam optimizer(dense_parameters, torch::optim::AdamOptions(options.learning_rate));
   if (resuming) {
     torch::serialize::InputArchive optimizer_archive;
     if (!checkpoint.try_read("optimizer", optimizer_archive)) {
       ThrowInvalidArgument("{}: checkpoint without optimizer state", checkpoint_source);
     }
     optimizer.load(optimizer_archive);
+    for (size_t i = 0; i < lazy.size(); ++i) {
+      checkpoint.read(fmt::format("lazy_adam{}_m", i), lazy[i].first_moment);
+      checkpoint.read(fmt::format("lazy_adam{}_v", i), lazy[i].second_moment);
+      lazy[i].steps = ReadScalar(checkpoint, fmt::format("lazy_adam{}_steps", i).c_str(),
+                                 checkpoint_source);
+    }
+    for (size_t i = 0;; ++i) {
+      torch::Tensor parameter;
+      if (!checkpoint.try_read(fmt::format("best{}", i), parameter)) break;
+      state.best_parameters.push_back(parameter);
+    }
   }
+
+  // The visibility of every database image, per tree node, for the visibility softmax and the
+  // held-out checks (masked decoding, as the localizer's visibility filter sees it).
+  const Visibility visibility =
+      Visibility::FromObservations(scene.NumImages(), scene.NumPoints(),
+                                   scene.observation_image_indices,
+                                   scene.observation_point_indices);
+  std::unique_ptr<NodeVisibilityMasks> node_masks;
+  if (options.visibility_softmax) {
+    std::vector<uint32_t> all_images(scene.NumImages());
+    std::iota(all_images.begin(), all_images.end(), 0u);
+    node_masks = std::make_unique<NodeVisibilityMasks>(all_images, tree, visibility);
+  }
+  const BatchContext context{scene, tree, options, node_masks.get(),
+                             options.network.node_output_dim > 0};
+  // The held-out sample of the checks: evenly spaced over the held-out observations.
+  std::vector<uint32_t> check_sample;
+  {
+    const std::vector<uint32_t> held_out =
+        HeldOutObservations(scene, options.holdout_fraction, options.holdout_seed);
+    const size_t wanted = std::min<size_t>(held_out.size(), options.evaluation_observations);
+    for (size_t i = 0; i < wanted; ++i) check_sample.push_back(held_out[i * held_out.size() / wanted]);
+  }
+  const bool checking = options.evaluations > 0 && !check_sample.empty();
 
   SampleOrder order(std::move(training), options.seed);
   const double max_seconds = options.max_minutes * 60;
   const int64_t max_iterations =
-      options.max_iterations > 0 ? options.max_iterations : std::numeric_limits<int64_t>::max();
+      budget_iterations > 0 ? budget_iterations : std::numeric_limits<int64_t>::max();
   const auto progress_of = [&](int64_t iteration, double seconds) {
     double progress = 0;
-    if (options.max_iterations > 0) {
-      progress = static_cast<double>(iteration) / static_cast<double>(options.max_iterations);
+    if (budget_iterations > 0) {
+      progress = static_cast<double>(iteration) / static_cast<double>(budget_iterations);
     }
     if (max_seconds > 0) progress = std::max(progress, seconds / max_seconds);
     return progress;
   };
 
   ProgressBar progress(
-      "train", options.max_iterations > 0 ? options.max_iterations : 0,
+      "train", budget_iterations > 0 ? budget_iterations : 0,
       options.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
   progress.Advance(static_cast<uint64_t>(std::min(state.iteration, max_iterations)));
   Timer timer;
@@ -364,6 +586,7 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
   torch::Tensor sums = torch::zeros({1 + levels}, torch::TensorOptions().device(device));
   int64_t iterations_in_sums = 0;
   double learning_rate = ScheduledLearningRate(options, progress_of(state.iteration, elapsed()));
+  std::string check_status;
 
   const auto flush_log = [&](int64_t iteration) {
     if (iterations_in_sums == 0) return;
@@ -372,17 +595,46 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
     for (int level = 0; level < levels; ++level) {
       entry.level_accuracies.push_back(means[1 + level].item<double>());
     }
-    progress.SetStatus(
-        fmt::format("loss {:.3f} acc {}", entry.loss, FormatAccuracies(entry.level_accuracies)));
+    progress.SetStatus(fmt::format("loss {:.3f} acc {}{}", entry.loss,
+                                   FormatAccuracies(entry.level_accuracies), check_status));
     state.log.push_back(std::move(entry));
     sums.zero_();
     iterations_in_sums = 0;
+  };
+  // A held-out check: masked point accuracy on the sample; keeps the best parameters.
+  const auto check_held_out = [&] {
+    if (!checking) return;
+    if (!state.checks.empty() && state.checks.back().iteration == state.iteration) return;
+    const double seconds_before_check = elapsed();
+    module->eval();
+    const NetworkEvaluation evaluation =
+        EvaluateNetwork(*network, scene, tree, check_sample, &visibility);
+    module->train();
+    state.checks.push_back({state.iteration, seconds_before_check, evaluation.leaf_accuracy});
+    if (evaluation.leaf_accuracy > state.best_accuracy) {
+      state.best_accuracy = evaluation.leaf_accuracy;
+      state.best_iteration = state.iteration;
+      if (options.keep_best) {
+        torch::NoGradGuard no_grad;
+        state.best_parameters.clear();
+        for (const torch::Tensor& parameter : module->parameters()) {
+          state.best_parameters.push_back(parameter.detach().clone());
+        }
+      }
+    }
+    check_status = fmt::format(" held-out {:.1f}% (best {:.1f}%)", 100 * evaluation.leaf_accuracy,
+                               100 * state.best_accuracy);
+    progress.SetStatus(check_status);
+  };
+  const auto next_check_due = [&] {
+    const double next = static_cast<double>(state.checks.size() + 1) / options.evaluations;
+    return checking && next < 1 && progress_of(state.iteration, elapsed()) >= next;
   };
 
   while (state.iteration < max_iterations && !(max_seconds > 0 && elapsed() >= max_seconds)) {
     learning_rate = ScheduledLearningRate(options, progress_of(state.iteration, elapsed()));
     SetLearningRate(optimizer, learning_rate);
-    const Batch batch = MakeBatch(scene, tree, options, order, state.iteration, device);
+    const Batch batch = MakeBatch(context, order, state.iteration, device);
     const torch::Tensor descriptors = NormalizeRows(batch.descriptors);
     torch::Tensor loss = torch::zeros({}, torch::TensorOptions().device(device));
     std::vector<torch::Tensor> statistics;
@@ -392,8 +644,13 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
         statistics.push_back(torch::ones({}, torch::TensorOptions().device(device)));
         continue;
       }
-      const torch::Tensor logits = module->levels[level]->forward(
-          descriptors, batch.images, batch.labels.narrow(1, 0, static_cast<int64_t>(level)));
+      torch::Tensor logits = module->levels[level]->forward(
+          descriptors, batch.images, batch.labels.narrow(1, 0, static_cast<int64_t>(level)),
+          batch.parent_nodes[level], batch.child_nodes[level]);
+      if (batch.allowed[level].defined()) {
+        logits = logits.masked_fill(batch.allowed[level].logical_not(),
+                                    -std::numeric_limits<float>::infinity());
+      }
       const torch::Tensor target = batch.labels.select(1, level);
       loss = loss + torch::nn::functional::cross_entropy(logits, target);
       statistics.push_back(logits.detach().argmax(1).eq(target).to(torch::kFloat32).mean());
@@ -401,33 +658,62 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
     optimizer.zero_grad();
     loss.backward();
     optimizer.step();
+    for (LazyAdamTable& table : lazy) table.Step(learning_rate);
     statistics.insert(statistics.begin(), loss.detach());
     sums += torch::stack(statistics);
     ++iterations_in_sums;
     ++state.iteration;
     progress.Advance();
     if (state.iteration % options.log_every_iterations == 0) flush_log(state.iteration);
+    if (next_check_due()) check_held_out();
     if (!options.checkpoint_path.empty() &&
         state.iteration % options.checkpoint_every_iterations == 0) {
       state.seconds_before = elapsed();
       timer.Restart();
-      SaveCheckpoint(options.checkpoint_path, *network, optimizer, state, options);
+      SaveCheckpoint(options.checkpoint_path, *network, optimizer, lazy, state, options);
     }
   }
   flush_log(state.iteration);
+  check_held_out();
   progress.Finish();
   state.seconds_before = elapsed();
   timer.Restart();
   if (!options.checkpoint_path.empty()) {
-    SaveCheckpoint(options.checkpoint_path, *network, optimizer, state, options);
+    SaveCheckpoint(options.checkpoint_path, *network, optimizer, lazy, state, options);
   }
   module->eval();
+  for (Level& level : module->levels) level->SetSparseNodeRows(false);
+
+  // Early stopping: the best held-out network, where a later one was worse.
+  const bool restore = options.keep_best && !state.best_parameters.empty() &&
+                       !state.checks.empty() &&
+                       state.checks.back().point_accuracy < state.best_accuracy;
+  if (restore) {
+    torch::NoGradGuard no_grad;
+    const std::vector<torch::Tensor> parameters = module->parameters();
+    for (size_t i = 0; i < parameters.size(); ++i) parameters[i].copy_(state.best_parameters[i]);
+  }
 
   TrainingResult result{std::move(*network), state.iteration, state.seconds_before, 0, {},
                         num_training,        num_held_out,    std::move(state.log)};
   if (!result.log.empty()) {
     result.final_loss = result.log.back().loss;
     result.final_level_accuracies = result.log.back().level_accuracies;
+  }
+  result.held_out_checks = state.checks;
+  if (!state.checks.empty()) {
+    result.best_iteration = restore ? state.best_iteration : state.checks.back().iteration;
+    result.best_held_out_accuracy =
+        restore ? state.best_accuracy : state.checks.back().point_accuracy;
+    // Converged: less than one point gained over the last quarter of the budget.
+    const double final_progress = progress_of(state.iteration, state.seconds_before);
+    double at_three_quarters = state.checks.front().point_accuracy;
+    for (const HeldOutCheck& check : state.checks) {
+      if (progress_of(check.iteration, check.seconds) <= 0.75 * final_progress) {
+        at_three_quarters = check.point_accuracy;
+      }
+    }
+    result.converged = state.checks.size() >= 2 && state.best_accuracy - at_three_quarters < 0.01;
   }
   return result;
 }
@@ -493,7 +779,9 @@ void WriteNetworkToBundle(
   json["options"] = {{"channels", network_options.channels},
                      {"trunk_channels", network_options.trunk_channels},
                      {"embedding_dim", network_options.embedding_dim},
-                     {"conditioned_layers", network_options.conditioned_layers}};
+                     {"conditioned_layers", network_options.conditioned_layers},
+                     {"node_conditioning", network_options.node_conditioning},
+                     {"node_output_dim", network_options.node_output_dim}};
   json["parameters"] = result.network.NumParameters();
   json["training"] = {{"iterations", result.iterations},
                       {"seconds", result.seconds},
@@ -502,6 +790,13 @@ void WriteNetworkToBundle(
                       {"batch_size", options.batch_size},
                       {"learning_rate", options.learning_rate},
                       {"halving_fractions", options.halving_fractions},
+                      {"schedule", options.schedule == LearningRateSchedule::kOneCycle
+                                       ? "one_cycle"
+                                       : "halving"},
+                      {"visibility_softmax", options.visibility_softmax},
+                      {"best_iteration", result.best_iteration},
+                      {"best_held_out_accuracy", result.best_held_out_accuracy},
+                      {"converged", result.converged},
                       {"augmentation",
                        {{"enabled", options.augmentation.enabled},
                         {"noise_norm", options.augmentation.noise_norm},
