@@ -194,10 +194,15 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
   trunk2_ = register_module("trunk2", torch::nn::Linear(trunk_channels, channels));
   image_embedding_ =
       register_module("image_embedding", torch::nn::Embedding(shape.num_images + 1, embedding));
+  // A level whose parents all have one child never runs (Predict and training skip it): its
+  // per-node tables keep a single row.
+  const bool has_choice = !shape.nodes_per_depth.empty() &&
+                          shape.nodes_per_depth.at(level + 1) > shape.nodes_per_depth.at(level);
   if (options.node_conditioning) {
     node_embedding_first_ = shape.FirstNodeOfDepth(level);
     node_embedding_ = register_module(
-        "node_embedding", torch::nn::Embedding(shape.nodes_per_depth.at(level), embedding));
+        "node_embedding",
+        torch::nn::Embedding(has_choice ? shape.nodes_per_depth.at(level) : 1, embedding));
   } else {
     for (int k = 0; k < level; ++k) {
       label_embeddings_.push_back(register_module(
@@ -215,9 +220,7 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
   }
   node_output_dim_ = options.node_output_dim;
   if (node_output_dim_ > 0) {
-    // A level whose parents all have one child needs no rows (Predict and training skip it).
     const int64_t children = shape.nodes_per_depth.at(level + 1);
-    const bool has_choice = children > shape.nodes_per_depth.at(level);
     node_rows_first_ = shape.FirstNodeOfDepth(level + 1);
     projection_ = register_module("projection", torch::nn::Linear(channels, node_output_dim_));
     node_rows_ = register_parameter(

@@ -27,6 +27,7 @@ namespace {
 constexpr uint64_t kStreamHoldout = 0x686f6c64;  // "hold"
 constexpr uint64_t kStreamShuffle = 0x73687566;  // "shuf"
 constexpr uint64_t kStreamAugment = 0x6175676d;  // "augm"
+constexpr uint64_t kStreamSiblings = 0x7369626c;  // "sibl"
 
 // Every training step allocates and frees the same few-megabyte activations. glibc's defaults hand
 // such blocks back to the kernel on free (mmap'd chunks, heap trimming), so each step page-faulted
@@ -78,8 +79,10 @@ struct Batch {
   torch::Tensor labels;       // [B, levels]
   // Per level: the parent node of each row [B]; its children's node ids [B, branching] (-1: no
   // such child; node output rows only); the children its softmax ranges over [B, branching]
-  // (visibility softmax only; undefined: every label).
-  std::vector<torch::Tensor> parent_nodes, child_nodes, allowed;
+  // (visibility softmax only; undefined: every label). With node output rows and the visibility
+  // softmax, child_nodes holds only the candidates, [B, K], and targets [B] the true child's
+  // column (undefined: the label).
+  std::vector<torch::Tensor> parent_nodes, child_nodes, allowed, targets;
 };
 
 // What a batch needs of the tree beyond the labels: node visibility per image for the
@@ -135,13 +138,62 @@ Batch MakeBatch(const BatchContext& context, SampleOrder& order, int64_t iterati
       std::copy(path, path + levels, label_data + row * levels);
     }
   });
-  Batch batch{descriptors.to(device), images.to(device), labels.to(device), {}, {}, {}};
+  Batch batch{descriptors.to(device), images.to(device), labels.to(device), {}, {}, {}, {}};
   const int64_t branching = tree.branching();
   std::vector<int64_t> node(size, 0);
   for (int level = 0; level < levels; ++level) {
     torch::Tensor parents = torch::from_blob(node.data(), {size}, torch::kInt64).clone();
-    torch::Tensor children, allowed;
-    if (tree.LevelHasChoice(level)) {
+    torch::Tensor children, allowed, targets;
+    if (tree.LevelHasChoice(level) && context.node_output && context.masks != nullptr) {
+      // Only the candidates are gathered: the children the image sees (a few of up to
+      // `branching`). A row without an image ranges over all children, sampled down to as many as
+      // the widest image row has (the true child and random siblings), so that it costs no more.
+      std::vector<std::vector<int64_t>> candidates(size);
+      std::vector<int64_t> target(size, 0);
+      size_t widest = 1;
+      bool any_image = false;
+      for (int64_t row = 0; row < size; ++row) {
+        if (image_data[row] == static_cast<int64_t>(no_image)) continue;
+        const uint32_t parent = static_cast<uint32_t>(node[row]);
+        const uint32_t first = tree.FirstChild(parent);
+        const int64_t truth = first + label_data[row * levels + level];
+        for (uint32_t c = 0; c < tree.NumChildren(parent); ++c) {
+          if (first + c == truth ||
+              context.masks->Contains(static_cast<int>(image_data[row]), first + c)) {
+            if (first + c == truth) target[row] = static_cast<int64_t>(candidates[row].size());
+            candidates[row].push_back(first + c);
+          }
+        }
+        widest = std::max(widest, candidates[row].size());
+        any_image = true;
+      }
+      if (!any_image) widest = static_cast<size_t>(branching);
+      for (int64_t row = 0; row < size; ++row) {
+        if (image_data[row] != static_cast<int64_t>(no_image)) continue;
+        const uint32_t parent = static_cast<uint32_t>(node[row]);
+        const uint32_t first = tree.FirstChild(parent);
+        const int64_t truth = first + label_data[row * levels + level];
+        std::vector<int64_t> siblings;
+        for (uint32_t c = 0; c < tree.NumChildren(parent); ++c) {
+          if (first + c != truth) siblings.push_back(first + c);
+        }
+        Random random(options.seed, {kStreamSiblings, static_cast<uint64_t>(iteration),
+                                     static_cast<uint64_t>(row), static_cast<uint64_t>(level)});
+        const size_t keep = std::min(siblings.size(), widest - 1);
+        for (size_t i = 0; i < keep; ++i) {
+          std::swap(siblings[i], siblings[i + random.UniformInt(siblings.size() - i)]);
+        }
+        candidates[row] = {truth};
+        candidates[row].insert(candidates[row].end(), siblings.begin(), siblings.begin() + keep);
+      }
+      children = torch::full({size, static_cast<int64_t>(widest)}, -1, torch::kInt64);
+      int64_t* child_data = children.data_ptr<int64_t>();
+      for (int64_t row = 0; row < size; ++row) {
+        std::copy(candidates[row].begin(), candidates[row].end(), child_data + row * widest);
+      }
+      children = children.to(device);
+      targets = torch::from_blob(target.data(), {size}, torch::kInt64).clone().to(device);
+    } else if (tree.LevelHasChoice(level)) {
       if (context.node_output) children = ChildNodesOf(tree, node.data(), size);
       if (context.masks != nullptr) {
         allowed = torch::zeros({size, branching}, torch::kBool);
@@ -164,6 +216,7 @@ Batch MakeBatch(const BatchContext& context, SampleOrder& order, int64_t iterati
     batch.parent_nodes.push_back(parents.to(device));
     batch.child_nodes.push_back(children);
     batch.allowed.push_back(allowed);
+    batch.targets.push_back(targets);
     for (int64_t row = 0; row < size; ++row) {
       node[row] = tree.FirstChild(static_cast<uint32_t>(node[row])) + label_data[row * levels + level];
     }
@@ -651,7 +704,8 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
         logits = logits.masked_fill(batch.allowed[level].logical_not(),
                                     -std::numeric_limits<float>::infinity());
       }
-      const torch::Tensor target = batch.labels.select(1, level);
+      const torch::Tensor target =
+          batch.targets[level].defined() ? batch.targets[level] : batch.labels.select(1, level);
       loss = loss + torch::nn::functional::cross_entropy(logits, target);
       statistics.push_back(logits.detach().argmax(1).eq(target).to(torch::kFloat32).mean());
     }
@@ -705,7 +759,7 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
     result.best_iteration = restore ? state.best_iteration : state.checks.back().iteration;
     result.best_held_out_accuracy =
         restore ? state.best_accuracy : state.checks.back().point_accuracy;
-    // Converged: less than one point gained over the last quarter of the budget.
+    // Converged: the last quarter of the budget gained less than 5 % of the accuracy reached.
     const double final_progress = progress_of(state.iteration, state.seconds_before);
     double at_three_quarters = state.checks.front().point_accuracy;
     for (const HeldOutCheck& check : state.checks) {
@@ -713,7 +767,8 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
         at_three_quarters = check.point_accuracy;
       }
     }
-    result.converged = state.checks.size() >= 2 && state.best_accuracy - at_three_quarters < 0.01;
+    result.converged = state.checks.size() >= 2 &&
+                       state.best_accuracy - at_three_quarters < 0.05 * state.best_accuracy;
   }
   return result;
 }

@@ -125,7 +125,8 @@ struct TrainingResult {
   // The returned network's iteration and held-out accuracy (keep_best), or the last ones.
   int64_t best_iteration = 0;
   double best_held_out_accuracy = -1;  // -1: never evaluated
-  // Whether the held-out accuracy gained less than one point over the last quarter of the budget.
+  // Whether the held-out accuracy gained less than 5 % (relative) over the last quarter of the
+  // budget.
   bool converged = false;
 
   // "iteration,seconds,learning_rate,loss,accuracy_level1,..." and one line per entry.

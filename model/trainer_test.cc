@@ -150,8 +150,10 @@ TEST_F(TinyCityTrainerTest, ReachesNinetyNinePercentOnItsTrainingObservations) {
   EXPECT_EQ(result.iterations, 400);
   EXPECT_EQ(result.num_training_observations + result.num_held_out_observations,
             Map().scene.NumObservations());
-  const NetworkEvaluation training = EvaluateNetwork(result.network, Map().scene, Map().tree,
-                                                     TrainingObservations(Map().scene, options));
+  // Trained with the visibility softmax, the network is decoded with the visibility mask.
+  const NetworkEvaluation training =
+      EvaluateNetwork(result.network, Map().scene, Map().tree,
+                      TrainingObservations(Map().scene, options), &Map().visibility);
   const NetworkEvaluation held_out =
       EvaluateNetwork(result.network, Map().scene, Map().tree,
                       HeldOutObservations(Map().scene, options.holdout_fraction, 0));

@@ -130,7 +130,7 @@ int RunTrain(TrainArguments& arguments) {
         "held-out point accuracy (masked, {} checks) {:.2f} % at iteration {}{}; {}\n",
         result.held_out_checks.size(), 100 * result.best_held_out_accuracy, result.best_iteration,
         result.best_iteration < result.iterations ? " (best kept: later checks were worse)" : "",
-        result.converged ? "converged (< 1 point gained over the last quarter of the budget)"
+        result.converged ? "converged (< 5 % gained over the last quarter of the budget)"
                          : "not converged: still improving, a larger budget would help "
                            "(--epochs, --resume)");
   }
