@@ -449,8 +449,12 @@ double DefaultEpochs(size_t num_training_observations) {
 }
 
 NetworkOptions DefaultNetworkOptions(size_t num_points) {
+  // The node output rows are most of the network's bytes: at most about 6 M numbers (24 MB), so
+  // that the HSC bundle stays under a fifth of the nearest-neighbour map (docs/decisions.md).
   NetworkOptions options;
-  options.node_output_dim = num_points <= 400000 ? 64 : num_points <= 1000000 ? 32 : 24;
+  int rows = 64;
+  while (rows > 16 && static_cast<double>(num_points) * (rows + 1) > 6e6) rows /= 2;
+  options.node_output_dim = rows;
   return options;
 }
 
