@@ -146,6 +146,7 @@ TEST(TrainerTest, HeldOutSplitIsDeterministicAndNearTheFraction) {
 
 TEST_F(TinyCityTrainerTest, ReachesNinetyNinePercentOnItsTrainingObservations) {
   TrainerOptions options = QuickOptions(400);
+  options.visibility_softmax = true;
   const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
   EXPECT_EQ(result.iterations, 400);
   EXPECT_EQ(result.num_training_observations + result.num_held_out_observations,
@@ -168,6 +169,24 @@ TEST_F(TinyCityTrainerTest, ReachesNinetyNinePercentOnItsTrainingObservations) {
   // The one-cycle ends near its final rate.
   EXPECT_NEAR(result.log.back().learning_rate, options.learning_rate * options.final_rate_fraction,
               0.01 * options.learning_rate);
+}
+
+TEST_F(TinyCityTrainerTest, DefaultsAndThePapersConfigurationDecodePlainly) {
+  for (const bool paper : {false, true}) {
+    TrainerOptions options = QuickOptions(400);
+    if (paper) {
+      options.network.node_conditioning = false;
+      options.network.node_output_dim = 0;
+      options.schedule = LearningRateSchedule::kHalving;
+    }
+    const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
+    const NetworkEvaluation training = EvaluateNetwork(result.network, Map().scene, Map().tree,
+                                                       TrainingObservations(Map().scene, options));
+    std::cout << fmt::format("tiny city, {}: plain decoding, training leaf accuracy {:.4f}\n",
+                             paper ? "the paper's configuration" : "defaults",
+                             training.leaf_accuracy);
+    EXPECT_GE(training.leaf_accuracy, 0.99) << (paper ? "paper" : "defaults");
+  }
 }
 
 TEST_F(TinyCityTrainerTest, VisibilitySoftmaxRangesOverTheImagesChildrenOnly) {

@@ -25,7 +25,7 @@ struct TrainArguments {
   bool eval_only = false;
   bool paper = false;
   bool no_node_conditioning = false;
-  bool no_visibility_softmax = false;
+  bool visibility_softmax = false;
   bool dense_node_updates = false;
   bool no_keep_best = false;
   std::string schedule;
@@ -83,14 +83,14 @@ int RunTrain(TrainArguments& arguments) {
     const NetworkOptions paper = NetworkOptions::PaperFaithful();
     options.network.node_conditioning = paper.node_conditioning;
     options.network.node_output_dim = paper.node_output_dim;
-    options.visibility_softmax = false;
+    arguments.visibility_softmax = false;
     options.schedule = LearningRateSchedule::kHalving;
   } else if (!arguments.node_output_dim_given) {
     options.network.node_output_dim =
         DefaultNetworkOptions(map->scene().NumPoints()).node_output_dim;
   }
   if (arguments.no_node_conditioning) options.network.node_conditioning = false;
-  if (arguments.no_visibility_softmax) options.visibility_softmax = false;
+  if (arguments.visibility_softmax) options.visibility_softmax = true;
   if (arguments.dense_node_updates) options.sparse_node_updates = false;
   if (arguments.no_keep_best) options.keep_best = false;
   if (arguments.schedule == "halving") options.schedule = LearningRateSchedule::kHalving;
@@ -178,8 +178,9 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
       ->each([arguments](const std::string&) { arguments->node_output_dim_given = true; });
   command->add_flag("--no-node-conditioning", arguments->no_node_conditioning,
                     "Condition on summed label embeddings (the paper) instead of node rows");
-  command->add_flag("--no-visibility-softmax", arguments->no_visibility_softmax,
-                    "Train each level's softmax over all children, not only the visible ones");
+  command->add_flag("--visibility-softmax", arguments->visibility_softmax,
+                    "Train each level's softmax over the children the image sees only (then "
+                    "localize with --masked-decoding)");
   command->add_flag("--dense-node-updates", arguments->dense_node_updates,
                     "Dense Adam over the node output rows instead of lazy row updates");
   command->add_flag("--paper", arguments->paper,
