@@ -633,10 +633,12 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
     return progress;
   };
 
+  // The bar counts this run's steps (a resumed run's rate and ETA would otherwise include the
+  // steps before the resume).
   ProgressBar progress(
-      "train", budget_iterations > 0 ? budget_iterations : 0,
+      "train",
+      budget_iterations > 0 ? budget_iterations - std::min(state.iteration, budget_iterations) : 0,
       options.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
-  progress.Advance(static_cast<uint64_t>(std::min(state.iteration, max_iterations)));
   Timer timer;
   const auto elapsed = [&] { return state.seconds_before + timer.ElapsedSeconds(); };
   // Sums since the last log entry, kept on the device so that no iteration waits for a copy.
