@@ -76,7 +76,7 @@ struct BenchmarkMap {
   }
 
   NetworkShape Shape() const {
-    return {kDescriptorDim, tree.levels(), tree.branching(), kNumImages};
+    return NetworkShape::ForTree(kDescriptorDim, tree, kNumImages);
   }
 };
 

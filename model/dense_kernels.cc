@@ -5,6 +5,7 @@
 #undef Eigen
 
 #include <algorithm>
+#include <limits>
 
 #include "model/dense_kernels.h"
 
@@ -43,43 +44,61 @@ Packet Elu(const Packet& x) {
 
 }  // namespace
 
-void Linear(const float* in, int64_t m, int64_t k, const float* weight, const float* bias,
-            int64_t n, bool elu, float* out) {
-  const ConstMatrixMap input(in, m, k);
-  const ConstMatrixMap weights(weight, n, k);
-  MatrixMap output(out, m, n);
+void Linear(const float* in, int64_t rows, int64_t in_features, const float* weight,
+            const float* bias, int64_t out_features, bool elu, float* out) {
+  const ConstMatrixMap input(in, rows, in_features);
+  const ConstMatrixMap weights(weight, out_features, in_features);
+  MatrixMap output(out, rows, out_features);
   output.noalias() = input * weights.transpose();
-  output.rowwise() += E::Map<const E::RowVectorXf>(bias, n);
-  if (elu) EluInPlace(out, m * n);
+  output.rowwise() += E::Map<const E::RowVectorXf>(bias, out_features);
+  if (elu) EluInPlace(out, rows * out_features);
 }
 
 void ModulateElu(const float* source, const int64_t* source_rows, const float* gamma,
                  const float* beta, const int32_t* modulation_rows, int64_t rows, int64_t columns,
                  float* out) {
-  for (int64_t r = 0; r < rows; ++r) {
-    const float* x = source + (source_rows != nullptr ? source_rows[r] : r) * columns;
-    const float* g = gamma + int64_t{modulation_rows[r]} * columns;
-    const float* b = beta + int64_t{modulation_rows[r]} * columns;
-    float* y = out + r * columns;
-    int64_t i = 0;
-    for (; i + kLanes <= columns; i += kLanes) {
-      ei::pstoreu(y + i, Elu(ei::pmadd(ei::ploadu<Packet>(g + i), ei::ploadu<Packet>(x + i),
-                                       ei::ploadu<Packet>(b + i))));
+  for (int64_t row = 0; row < rows; ++row) {
+    const float* source_row = source + (source_rows != nullptr ? source_rows[row] : row) * columns;
+    const float* gamma_row = gamma + int64_t{modulation_rows[row]} * columns;
+    const float* beta_row = beta + int64_t{modulation_rows[row]} * columns;
+    float* out_row = out + row * columns;
+    int64_t column = 0;
+    for (; column + kLanes <= columns; column += kLanes) {
+      ei::pstoreu(out_row + column, Elu(ei::pmadd(ei::ploadu<Packet>(gamma_row + column),
+                                                  ei::ploadu<Packet>(source_row + column),
+                                                  ei::ploadu<Packet>(beta_row + column))));
     }
-    for (; i < columns; ++i) {
+    for (; column < columns; ++column) {
       alignas(64) float lane[kLanes] = {};
-      lane[0] = g[i] * x[i] + b[i];
+      lane[0] = gamma_row[column] * source_row[column] + beta_row[column];
       ei::pstore(lane, Elu(ei::pload<Packet>(lane)));
-      y[i] = lane[0];
+      out_row[column] = lane[0];
     }
   }
 }
 
 void EluInPlace(float* values, int64_t count) { ForEachPacket(values, count, values, Elu); }
 
+void NodeLogits(const float* projected, int64_t num_inputs, int64_t dim, const float* node_rows,
+                int64_t num_children, int64_t out_columns, float* out) {
+  using StridedMap = E::Map<const RowMajorMatrix, 0, E::OuterStride<>>;
+  const ConstMatrixMap input(projected, num_inputs, dim);
+  const StridedMap weights(node_rows, num_children, dim, E::OuterStride<>(dim + 1));
+  const E::Map<const E::RowVectorXf, 0, E::InnerStride<>> biases(node_rows + dim, num_children,
+                                                                 E::InnerStride<>(dim + 1));
+  E::Map<RowMajorMatrix, 0, E::OuterStride<>> output(out, num_inputs, num_children,
+                                                     E::OuterStride<>(out_columns));
+  output.noalias() = input * weights.transpose();
+  output.rowwise() += biases;
+  for (int64_t input_row = 0; input_row < num_inputs; ++input_row) {
+    std::fill(out + input_row * out_columns + num_children, out + (input_row + 1) * out_columns,
+              -std::numeric_limits<float>::infinity());
+  }
+}
+
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns) {
-  for (int64_t r = 0; r < rows; ++r) {
-    float* row = values + r * columns;
+  for (int64_t row_index = 0; row_index < rows; ++row_index) {
+    float* row = values + row_index * columns;
     const float max = *std::max_element(row, row + columns);
     const Packet shift = ei::pset1<Packet>(max);
     ForEachPacket(row, columns, row, [&](const Packet& x) { return ei::pexp(ei::psub(x, shift)); });

@@ -13,10 +13,11 @@
 
 namespace hscloc::dense_kernels {
 
-// out[m x n] = in[m x k] * weight[n x k]^T + bias[n] (weight as torch.nn.Linear stores it), then
-// ELU where `elu`. `out` must not alias `in`.
-void Linear(const float* in, int64_t m, int64_t k, const float* weight, const float* bias,
-            int64_t n, bool elu, float* out);
+// out[rows x out_features] = in[rows x in_features] * weight[out_features x in_features]^T +
+// bias[out_features] (weight as torch.nn.Linear stores it), then ELU where `elu`. `out` must not
+// alias `in`.
+void Linear(const float* in, int64_t rows, int64_t in_features, const float* weight,
+            const float* bias, int64_t out_features, bool elu, float* out);
 
 // out[r, :] = ELU(gamma[modulation_rows[r], :] * source[source_rows[r], :] +
 //                 beta[modulation_rows[r], :]) for r < rows, all rows of `columns` floats;
@@ -26,6 +27,13 @@ void ModulateElu(const float* source, const int64_t* source_rows, const float* g
                  float* out);
 
 void EluInPlace(float* values, int64_t count);
+
+// Logits of one parent's children from per-node output rows: for i < num_inputs and
+// c < num_children, out[i * out_columns + c] = <projected[i, :dim], node_rows[c, :dim]> +
+// node_rows[c, dim] (node rows of dim + 1 floats: weights, then the bias); columns
+// num_children .. out_columns - 1 are set to -infinity (no such child).
+void NodeLogits(const float* projected, int64_t num_inputs, int64_t dim, const float* node_rows,
+                int64_t num_children, int64_t out_columns, float* out);
 
 // Each of `rows` rows of `columns` values replaced by its softmax.
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns);

@@ -9,6 +9,16 @@
 //                gamma_i = Linear(z), beta_i = Linear(z)           one pair per conditioned layer
 //   conditioned  h_i = ELU(gamma_i * (W_i h_{i-1} + b_i) + beta_i)  h_0 = t
 //   output       logits = Linear(h_last) over the children of the parent cluster
+//
+// Two departures measured at city scale (docs/decisions.md, "Training at city scale"), each an
+// option, both off in NetworkOptions::PaperFaithful():
+//   node conditioning   the generator reads one embedding row per tree node, that of the parent
+//                       (the whole label prefix), instead of sum_{k<j} E_k[label_k];
+//   node output rows    logits_c = <u_child(c), [P h_last, 1]>: a projection P (C -> r) shared by
+//                       the level and one row u (r weights and a bias) per tree node, so every
+//                       parent has a classifier of its own over its children (near the leaves a
+//                       learned nearest-class-mean matcher). Children a parent does not have get
+//                       probability 0.
 // The paper's 1x1 convolutions over one-hot labels and an encoded image id are embedding lookups;
 // the paper's per-position linear modulation is gamma * (W h + b) + beta.
 //
@@ -27,11 +37,11 @@
 #include <string>
 #include <vector>
 
-#include "scene/features.h"
 #include "map/label_tree.h"
 #include "map/map_blobs.h"
 #include "map/map_bundle.h"
 #include "map/visibility.h"
+#include "scene/features.h"
 
 namespace hscloc {
 
@@ -61,7 +71,16 @@ struct NetworkShape {
   int branching = 0;
   // Database images; the image embedding has one more row, index num_images, meaning "no image".
   int num_images = 0;
+  // Nodes of the label tree per depth, 0 (the root) .. levels; empty when unknown, which only the
+  // paper's configuration (no per-node tables) allows.
+  std::vector<int64_t> nodes_per_depth;
 
+  // The shape of a network over `tree`, with its node counts.
+  static NetworkShape ForTree(int descriptor_dim, const LabelTree& tree, int num_images);
+  // The first node id of a depth (nodes are numbered breadth-first); needs nodes_per_depth.
+  int64_t FirstNodeOfDepth(int depth) const;
+  // Whether the tree has the node counts this shape records.
+  bool FitsTree(const LabelTree& tree) const;
   void Check() const;
   bool operator==(const NetworkShape& other) const;
 };
@@ -71,7 +90,17 @@ struct NetworkOptions {
   int embedding_dim = 64;      // width of the image and label embeddings and of the generator
   int conditioned_layers = 1;  // FiLM-modulated layers per level, 1 .. 3
   int trunk_channels = 512;    // H: width of the trunk's hidden layer (runs once per keypoint)
+  // The generator reads the parent node's own embedding row (one per tree node) rather than the
+  // sum of one row per coarser label (the paper's one-hot labels); needs the shape's node counts.
+  bool node_conditioning = true;
+  // r > 0: per-node output rows of r weights and a bias after a shared projection C -> r;
+  // 0: the paper's Linear(C, branching) shared by every parent of the level.
+  int node_output_dim = 64;
 
+  // The configuration of Li et al. (label-sum conditioning, a shared output layer per level).
+  static NetworkOptions PaperFaithful();
+  // Whether any per-node table needs the shape's node counts.
+  bool NeedsNodeCounts() const { return node_conditioning || node_output_dim > 0; }
   void Check() const;
   bool operator==(const NetworkOptions& other) const;
 };

@@ -35,13 +35,13 @@ void ForEachRowBlock(int64_t rows, const std::function<void(int64_t begin, int64
 // Per-thread buffers of one row block, kept between blocks and calls: fresh allocations of this
 // size would each be zeroed and page-faulted in.
 struct BlockScratch {
-  std::vector<float> hidden, embedding, generator, features, linear, logits;
+  std::vector<float> hidden, embedding, generator, features, linear, logits, projected;
   std::vector<std::vector<float>> gammas, betas;
   std::vector<int32_t> run_of_row;
   std::vector<int64_t> descriptor_of_row;
 
   void Reserve(int64_t rows, int64_t trunk_channels, int64_t channels, int64_t embedding_dim,
-               int64_t branching, int layers) {
+               int64_t branching, int layers, int64_t projected_dim) {
     const auto grow = [](auto& buffer, int64_t size) {
       if (static_cast<int64_t>(buffer.size()) < size) buffer.resize(size);
     };
@@ -51,6 +51,7 @@ struct BlockScratch {
     grow(features, rows * channels);
     grow(linear, rows * channels);
     grow(logits, rows * branching);
+    grow(projected, rows * projected_dim);
     grow(run_of_row, rows);
     grow(descriptor_of_row, rows);
     if (static_cast<int>(gammas.size()) < layers) {
@@ -64,142 +65,257 @@ struct BlockScratch {
   }
 };
 
+// The forward pass of one Predict call, level by level: the descriptor-only layers once per
+// keypoint, then the image- and label-dependent layers over every (image, keypoint) row, block
+// by block, rows sorted so that those sharing an image and label prefix are adjacent.
+class CpuForwardPass {
+ public:
+  CpuForwardPass(const Network& network, const DescriptorMatrix& descriptors,
+                 const std::vector<uint32_t>& image_indices, const LabelTree& tree,
+                 const Visibility* visibility_mask)
+      : shape_(network.shape()),
+        image_indices_(image_indices),
+        tree_(tree),
+        num_descriptors_(descriptors.rows()),
+        num_rows_(descriptors.rows() * static_cast<int64_t>(image_indices.size())),
+        channels_(network.options().channels),
+        trunk_channels_(network.options().trunk_channels),
+        embedding_dim_(network.options().embedding_dim),
+        node_output_dim_(network.options().node_output_dim),
+        result_(AllocatePredictions(static_cast<int64_t>(image_indices.size()), descriptors.rows(),
+                                    shape_.levels)),
+        scaled_descriptors_(descriptors),
+        parent_node_(num_rows_, 0),
+        descriptor_features_(num_descriptors_ * channels_),
+        keyed_rows_(num_rows_) {
+    // L2-normalized rows, scaled by each level's input scale as the levels ask for it.
+    for (int64_t i = 0; i < num_descriptors_; ++i) {
+      scaled_descriptors_.row(i) /= std::max(scaled_descriptors_.row(i).norm(), 1e-12f);
+    }
+    if (visibility_mask != nullptr) {
+      masks_ = std::make_unique<NodeVisibilityMasks>(image_indices, tree, *visibility_mask);
+    }
+  }
+
+  PointPredictions Run(const Network& network) {
+    if (num_rows_ == 0) return std::move(result_);
+    for (const Level& level : NetworkInternals::Module(network)->levels) {
+      const Timer level_timer;
+      const int depth = level->level();
+      if (tree_.LevelHasChoice(depth)) {
+        RunLevel(level->CpuWeights(), depth, level->NumConditionedLayers());
+      } else {
+        SkipLevel(depth);
+      }
+      result_.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
+    }
+    ResolvePointIndices(tree_, result_);
+    return std::move(result_);
+  }
+
+ private:
+  uint8_t& LabelOf(int64_t row, int depth) {
+    return result_.labels.data()[row * shape_.levels + depth];
+  }
+
+  // Every parent has a single child: label 0 with certainty, no network to run.
+  void SkipLevel(int depth) {
+    for (int64_t row = 0; row < num_rows_; ++row) {
+      LabelOf(row, depth) = 0;
+      parent_node_[row] = ChildNode(parent_node_[row], 0, tree_);
+    }
+  }
+
+  void RunLevel(const LevelWeights& weights, int depth, int layers) {
+    RunDescriptorLayers(weights, layers);
+    SortRowsByConditioning(depth);
+    ForEachRowBlock(num_rows_, [&](int64_t begin, int64_t end) {
+      thread_local BlockScratch scratch;
+      scratch.Reserve(end - begin, trunk_channels_, channels_, embedding_dim_, shape_.branching,
+                      layers, node_output_dim_);
+      GenerateModulation(weights, layers, begin, end, scratch);
+      ModulateFeatures(weights, layers, begin, end, scratch);
+      ComputeLogits(weights, begin, end, scratch);
+      ChooseLabels(depth, begin, end, scratch);
+    });
+  }
+
+  // The trunk and the first conditioned layer's W h + b depend on the descriptor only.
+  void RunDescriptorLayers(const LevelWeights& weights, int layers) {
+    if (weights.input_scale != current_scale_) {
+      scaled_descriptors_ *= weights.input_scale / current_scale_;
+      current_scale_ = weights.input_scale;
+    }
+    const int64_t descriptor_dim = shape_.descriptor_dim;
+    ForEachRowBlock(num_descriptors_, [&](int64_t begin, int64_t end) {
+      const int64_t block_rows = end - begin;
+      thread_local BlockScratch scratch;
+      scratch.Reserve(block_rows, trunk_channels_, channels_, embedding_dim_, shape_.branching,
+                      layers, node_output_dim_);
+      dense_kernels::Linear(scaled_descriptors_.data() + begin * descriptor_dim, block_rows,
+                            descriptor_dim, weights.trunk1_weight, weights.trunk1_bias,
+                            trunk_channels_, true, scratch.hidden.data());
+      dense_kernels::Linear(scratch.hidden.data(), block_rows, trunk_channels_,
+                            weights.trunk2_weight, weights.trunk2_bias, channels_, true,
+                            scratch.linear.data());
+      dense_kernels::Linear(scratch.linear.data(), block_rows, channels_,
+                            weights.conditioned_weights[0], weights.conditioned_biases[0],
+                            channels_, false, descriptor_features_.data() + begin * channels_);
+    });
+  }
+
+  // Rows with the same image and label prefix share their modulation. Rows are visited in the
+  // order of that key, so a block holds runs of equal keys and evaluates the generator once per
+  // run, and a block's modulation never leaves the cache.
+  void SortRowsByConditioning(int depth) {
+    for (int64_t row = 0; row < num_rows_; ++row) {
+      int64_t key = image_indices_[row / num_descriptors_];
+      for (int coarser = 0; coarser < depth; ++coarser) {
+        key = key * shape_.branching + LabelOf(row, coarser);
+      }
+      keyed_rows_[row] = {key, row};
+    }
+    std::sort(keyed_rows_.begin(), keyed_rows_.end());
+  }
+
+  bool StartsRun(int64_t sorted_index, int64_t begin) const {
+    return sorted_index == begin ||
+           keyed_rows_[sorted_index].first != keyed_rows_[sorted_index - 1].first;
+  }
+
+  // FiLM parameters once per run of equal keys in sorted rows [begin, end).
+  void GenerateModulation(const LevelWeights& weights, int layers, int64_t begin, int64_t end,
+                          BlockScratch& scratch) {
+    const int64_t e = embedding_dim_;
+    int64_t runs = 0;
+    for (int64_t i = begin; i < end; ++i) {
+      const int64_t row = keyed_rows_[i].second;
+      if (StartsRun(i, begin)) {
+        // The generator input of the run: image embedding plus the parent's (or the coarser
+        // labels') embeddings.
+        auto sum = Eigen::Map<Eigen::VectorXf>(scratch.embedding.data() + runs * e, e);
+        sum = Eigen::Map<const Eigen::VectorXf>(
+            weights.image_embedding + image_indices_[row / num_descriptors_] * e, e);
+        if (weights.node_embedding != nullptr) {
+          const int64_t node_row =
+              std::max<int64_t>(parent_node_[row] - weights.node_embedding_first, 0);
+          sum += Eigen::Map<const Eigen::VectorXf>(weights.node_embedding + node_row * e, e);
+        }
+        for (int coarser = 0; coarser < static_cast<int>(weights.label_embeddings.size());
+             ++coarser) {
+          sum += Eigen::Map<const Eigen::VectorXf>(
+              weights.label_embeddings[coarser] + LabelOf(row, coarser) * e, e);
+        }
+        ++runs;
+      }
+      scratch.run_of_row[i - begin] = static_cast<int32_t>(runs - 1);
+      scratch.descriptor_of_row[i - begin] = row % num_descriptors_;
+    }
+    dense_kernels::EluInPlace(scratch.embedding.data(), runs * e);
+    dense_kernels::Linear(scratch.embedding.data(), runs, e, weights.generator_weight,
+                          weights.generator_bias, e, true, scratch.generator.data());
+    for (int layer = 0; layer < layers; ++layer) {
+      dense_kernels::Linear(scratch.generator.data(), runs, e, weights.gamma_weights[layer],
+                            weights.gamma_biases[layer], channels_, false,
+                            scratch.gammas[layer].data());
+      dense_kernels::Linear(scratch.generator.data(), runs, e, weights.beta_weights[layer],
+                            weights.beta_biases[layer], channels_, false,
+                            scratch.betas[layer].data());
+    }
+  }
+
+  // h_i = ELU(gamma_i * (W_i h_{i-1} + b_i) + beta_i) for every conditioned layer.
+  void ModulateFeatures(const LevelWeights& weights, int layers, int64_t begin, int64_t end,
+                        BlockScratch& scratch) {
+    const int64_t block_rows = end - begin;
+    dense_kernels::ModulateElu(descriptor_features_.data(), scratch.descriptor_of_row.data(),
+                               scratch.gammas[0].data(), scratch.betas[0].data(),
+                               scratch.run_of_row.data(), block_rows, channels_,
+                               scratch.features.data());
+    for (int layer = 1; layer < layers; ++layer) {
+      dense_kernels::Linear(scratch.features.data(), block_rows, channels_,
+                            weights.conditioned_weights[layer], weights.conditioned_biases[layer],
+                            channels_, false, scratch.linear.data());
+      dense_kernels::ModulateElu(scratch.linear.data(), nullptr, scratch.gammas[layer].data(),
+                                 scratch.betas[layer].data(), scratch.run_of_row.data(), block_rows,
+                                 channels_, scratch.features.data());
+    }
+  }
+
+  // Logits over the children, from the level's shared output layer or the parent's node rows.
+  void ComputeLogits(const LevelWeights& weights, int64_t begin, int64_t end,
+                     BlockScratch& scratch) {
+    const int64_t branching = shape_.branching;
+    const int64_t block_rows = end - begin;
+    if (weights.node_output_dim == 0) {
+      dense_kernels::Linear(scratch.features.data(), block_rows, channels_, weights.output_weight,
+                            weights.output_bias, branching, false, scratch.logits.data());
+      return;
+    }
+    // Each run shares its parent: its children's rows are contiguous in the node table.
+    const int64_t row_width = node_output_dim_ + 1;
+    dense_kernels::Linear(scratch.features.data(), block_rows, channels_, weights.projection_weight,
+                          weights.projection_bias, node_output_dim_, false,
+                          scratch.projected.data());
+    for (int64_t i = begin; i < end;) {
+      int64_t run_end = i + 1;
+      while (run_end < end && keyed_rows_[run_end].first == keyed_rows_[i].first) ++run_end;
+      const int64_t parent = parent_node_[keyed_rows_[i].second];
+      const int64_t count = parent < 0 ? 0 : tree_.NumChildren(static_cast<uint32_t>(parent));
+      const int64_t first =
+          parent < 0 ? 0
+                     : tree_.FirstChild(static_cast<uint32_t>(parent)) - weights.node_rows_first;
+      float* logits = scratch.logits.data() + (i - begin) * branching;
+      dense_kernels::NodeLogits(scratch.projected.data() + (i - begin) * node_output_dim_,
+                                run_end - i, node_output_dim_,
+                                weights.node_rows + first * row_width, count, branching, logits);
+      if (count == 0) std::fill_n(logits, (run_end - i) * branching, 0.0f);
+      i = run_end;
+    }
+  }
+
+  void ChooseLabels(int depth, int64_t begin, int64_t end, BlockScratch& scratch) {
+    const int64_t branching = shape_.branching;
+    dense_kernels::SoftmaxRowsInPlace(scratch.logits.data(), end - begin, branching);
+    for (int64_t i = begin; i < end; ++i) {
+      const int64_t row = keyed_rows_[i].second;
+      const float* probabilities = scratch.logits.data() + (i - begin) * branching;
+      const int slot = masks_ ? masks_->SlotOfK(static_cast<size_t>(row / num_descriptors_)) : -1;
+      const int64_t parent = parent_node_[row];
+      const int64_t best = ChooseLabel(probabilities, branching, masks_.get(), slot, parent, tree_);
+      LabelOf(row, depth) = static_cast<uint8_t>(best);
+      result_.confidences.data()[row] *= probabilities[best];
+      parent_node_[row] = ChildNode(parent, best, tree_);
+    }
+  }
+
+  const NetworkShape& shape_;
+  const std::vector<uint32_t>& image_indices_;
+  const LabelTree& tree_;
+  const int64_t num_descriptors_;
+  const int64_t num_rows_;  // images x descriptors, row k * N + n
+  const int64_t channels_;
+  const int64_t trunk_channels_;
+  const int64_t embedding_dim_;
+  const int64_t node_output_dim_;
+  PointPredictions result_;
+  DescriptorMatrix scaled_descriptors_;
+  float current_scale_ = 1;
+  std::unique_ptr<NodeVisibilityMasks> masks_;
+  // The tree node of every row's label prefix (-1 once a path leaves the tree).
+  std::vector<int64_t> parent_node_;
+  // The first conditioned layer's W h + b of every descriptor, [N, C].
+  std::vector<float> descriptor_features_;
+  // (image and label prefix, row), sorted.
+  std::vector<std::pair<int64_t, int64_t>> keyed_rows_;
+};
+
 }  // namespace
 
 PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& descriptors,
                               const std::vector<uint32_t>& image_indices, const LabelTree& tree,
                               const Visibility* visibility_mask) {
-  namespace dk = dense_kernels;
-  const NetworkShape& s = network.shape();
-  const int64_t n = descriptors.rows();
-  const int64_t k = static_cast<int64_t>(image_indices.size());
-  const int64_t rows = n * k;
-  const int64_t d = s.descriptor_dim;
-  const int64_t c = network.options().channels;
-  const int64_t h = network.options().trunk_channels;
-  const int64_t e = network.options().embedding_dim;
-  const int64_t branching = s.branching;
-  PointPredictions result = AllocatePredictions(k, n, s.levels);
-  if (rows == 0) return result;
-
-  // L2-normalized rows times the trunk's input scale; every level's scale is sqrt(D), so the rows
-  // are scaled once and again only if a level were to differ.
-  DescriptorMatrix scaled = descriptors;
-  for (int64_t i = 0; i < n; ++i) scaled.row(i) /= std::max(scaled.row(i).norm(), 1e-12f);
-  float current_scale = 1;
-  std::unique_ptr<NodeVisibilityMasks> masks;
-  std::vector<int64_t> parent_node;
-  if (visibility_mask != nullptr) {
-    masks = std::make_unique<NodeVisibilityMasks>(image_indices, tree, *visibility_mask);
-    parent_node.assign(rows, 0);
-  }
-
-  uint8_t* labels = result.labels.data();
-  float* confidences = result.confidences.data();
-  std::vector<float> shared(n * c);
-  std::vector<std::pair<int64_t, int64_t>> keyed_rows(rows);  // (image and label prefix, row)
-  for (const Level& level : NetworkInternals::Module(network)->levels) {
-    const Timer level_timer;
-    const int depth = level->level();
-    if (!tree.LevelHasChoice(depth)) {
-      // Every parent has a single child: label 0 with certainty, no network to run.
-      for (int64_t r = 0; r < rows; ++r) {
-        labels[r * s.levels + depth] = 0;
-        if (masks) parent_node[r] = ChildNode(parent_node[r], 0, tree);
-      }
-      result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
-      continue;
-    }
-    const LevelWeights w = level->CpuWeights();
-    const int layers = level->NumConditionedLayers();
-
-    // Descriptor-only part, once per keypoint: trunk and the first conditioned layer's W h + b.
-    if (w.input_scale != current_scale) {
-      scaled *= w.input_scale / current_scale;
-      current_scale = w.input_scale;
-    }
-    ForEachRowBlock(n, [&](int64_t begin, int64_t end) {
-      const int64_t m = end - begin;
-      thread_local BlockScratch scratch;
-      scratch.Reserve(m, h, c, e, branching, layers);
-      dk::Linear(scaled.data() + begin * d, m, d, w.trunk1_weight, w.trunk1_bias, h, true,
-                 scratch.hidden.data());
-      dk::Linear(scratch.hidden.data(), m, h, w.trunk2_weight, w.trunk2_bias, c, true,
-                 scratch.linear.data());
-      dk::Linear(scratch.linear.data(), m, c, w.conditioned_weights[0], w.conditioned_biases[0], c,
-                 false, shared.data() + begin * c);
-    });
-
-    // Rows with the same image and label prefix share their modulation. Rows are visited in the
-    // order of that key, so a block holds runs of equal keys and evaluates the generator once per
-    // run, and a block's modulation never leaves the cache.
-    for (int64_t r = 0; r < rows; ++r) {
-      int64_t key = image_indices[r / n];
-      for (int column = 0; column < depth; ++column) {
-        key = key * branching + labels[r * s.levels + column];
-      }
-      keyed_rows[r] = {key, r};
-    }
-    std::sort(keyed_rows.begin(), keyed_rows.end());
-
-    ForEachRowBlock(rows, [&](int64_t begin, int64_t end) {
-      const int64_t m = end - begin;
-      thread_local BlockScratch scratch;
-      scratch.Reserve(m, h, c, e, branching, layers);
-      int64_t runs = 0;
-      for (int64_t i = begin; i < end; ++i) {
-        if (i == begin || keyed_rows[i].first != keyed_rows[i - 1].first) {
-          // The generator input of the run: image embedding plus the coarser labels' embeddings.
-          const int64_t r = keyed_rows[i].second;
-          auto sum = Eigen::Map<Eigen::VectorXf>(scratch.embedding.data() + runs * e, e);
-          sum = Eigen::Map<const Eigen::VectorXf>(w.image_embedding + image_indices[r / n] * e, e);
-          for (int column = 0; column < depth; ++column) {
-            sum += Eigen::Map<const Eigen::VectorXf>(
-                w.label_embeddings[column] + labels[r * s.levels + column] * e, e);
-          }
-          ++runs;
-        }
-        scratch.run_of_row[i - begin] = static_cast<int32_t>(runs - 1);
-        scratch.descriptor_of_row[i - begin] = keyed_rows[i].second % n;
-      }
-      dk::EluInPlace(scratch.embedding.data(), runs * e);
-      dk::Linear(scratch.embedding.data(), runs, e, w.generator_weight, w.generator_bias, e, true,
-                 scratch.generator.data());
-      for (int layer = 0; layer < layers; ++layer) {
-        dk::Linear(scratch.generator.data(), runs, e, w.gamma_weights[layer], w.gamma_biases[layer],
-                   c, false, scratch.gammas[layer].data());
-        dk::Linear(scratch.generator.data(), runs, e, w.beta_weights[layer], w.beta_biases[layer],
-                   c, false, scratch.betas[layer].data());
-      }
-
-      dk::ModulateElu(shared.data(), scratch.descriptor_of_row.data(), scratch.gammas[0].data(),
-                      scratch.betas[0].data(), scratch.run_of_row.data(), m, c,
-                      scratch.features.data());
-      for (int layer = 1; layer < layers; ++layer) {
-        dk::Linear(scratch.features.data(), m, c, w.conditioned_weights[layer],
-                   w.conditioned_biases[layer], c, false, scratch.linear.data());
-        dk::ModulateElu(scratch.linear.data(), nullptr, scratch.gammas[layer].data(),
-                        scratch.betas[layer].data(), scratch.run_of_row.data(), m, c,
-                        scratch.features.data());
-      }
-      dk::Linear(scratch.features.data(), m, c, w.output_weight, w.output_bias, branching, false,
-                 scratch.logits.data());
-      dk::SoftmaxRowsInPlace(scratch.logits.data(), m, branching);
-      for (int64_t i = begin; i < end; ++i) {
-        const int64_t r = keyed_rows[i].second;
-        const float* probabilities = scratch.logits.data() + (i - begin) * branching;
-        const int slot = masks ? masks->SlotOfK(static_cast<size_t>(r / n)) : -1;
-        const int64_t parent = masks ? parent_node[r] : -1;
-        const int64_t best = ChooseLabel(probabilities, branching, masks.get(), slot, parent, tree);
-        labels[r * s.levels + depth] = static_cast<uint8_t>(best);
-        confidences[r] *= probabilities[best];
-        if (masks) parent_node[r] = ChildNode(parent, best, tree);
-      }
-    });
-    result.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
-  }
-  ResolvePointIndices(tree, result);
-  return result;
+  return CpuForwardPass(network, descriptors, image_indices, tree, visibility_mask).Run(network);
 }
 
 }  // namespace hscloc

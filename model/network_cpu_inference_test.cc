@@ -36,20 +36,39 @@ TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
   const DescriptorMatrix descriptors = RandomDescriptors(333, fixture.shape.descriptor_dim, 5);
   const std::vector<uint32_t> images = {4, 0, 8, 4, 9, 7};  // 9: no image
   for (int layers = 1; layers <= 3; ++layers) {
-    NetworkOptions options;
-    options.channels = 48;
-    options.embedding_dim = 24;
-    options.conditioned_layers = layers;
-    options.trunk_channels = 40 + 16 * layers;  // differs from the channels
-    const Network network(fixture.shape, options, 100 + layers);
-    for (const Visibility* mask : {static_cast<const Visibility*>(nullptr), &fixture.visibility}) {
-      SCOPED_TRACE(testing::Message()
-                   << layers << " conditioned layers, mask " << (mask != nullptr));
-      ExpectSamePredictions(
-          network.Predict(descriptors, images, fixture.tree, mask),
-          NetworkInternals::PredictWithTorch(network, descriptors, images, fixture.tree, mask));
+    NetworkOptions base;
+    base.channels = 48;
+    base.embedding_dim = 24;
+    base.conditioned_layers = layers;
+    base.trunk_channels = 40 + 16 * layers;  // differs from the channels
+    for (const NetworkOptions& options : testing_support::HeadVariants(base)) {
+      const Network network(fixture.shape, options, 100 + layers);
+      for (const Visibility* mask :
+           {static_cast<const Visibility*>(nullptr), &fixture.visibility}) {
+        SCOPED_TRACE(testing::Message()
+                     << layers << " conditioned layers, node conditioning "
+                     << options.node_conditioning << ", node output rows "
+                     << options.node_output_dim << ", mask " << (mask != nullptr));
+        ExpectSamePredictions(
+            network.Predict(descriptors, images, fixture.tree, mask),
+            NetworkInternals::PredictWithTorch(network, descriptors, images, fixture.tree, mask));
+      }
     }
   }
+}
+
+TEST(NetworkCpuInferenceTest, NodeOutputRowsGiveNoProbabilityToMissingChildren) {
+  const RandomMap fixture = MakeRandomMap(13);
+  NetworkOptions options = testing_support::SmallOptions();
+  options.node_output_dim = 6;
+  const Network network(fixture.shape, options, 4);
+  const DescriptorMatrix descriptors = RandomDescriptors(120, fixture.shape.descriptor_dim, 7);
+  const PointPredictions predictions = network.Predict(descriptors, {0, 3, 9}, fixture.tree);
+  // Every path stays in the tree: no level can pick a label its parent does not have.
+  EXPECT_TRUE((predictions.point_indices.array() >= 0).all());
+  // Trained-for-nothing rows still give probabilities: the confidence is a product of them.
+  EXPECT_TRUE((predictions.confidences.array() > 0).all());
+  EXPECT_TRUE((predictions.confidences.array() <= 1).all());
 }
 
 TEST(NetworkCpuInferenceTest, LevelsWithoutChoiceTakeTheOnlyChildWithCertainty) {
@@ -63,7 +82,7 @@ TEST(NetworkCpuInferenceTest, LevelsWithoutChoiceTakeTheOnlyChildWithCertainty) 
   tree_options.show_progress = false;
   const LabelTree tree = LabelTree::Build(points, tree_options);
   ASSERT_FALSE(tree.LevelHasChoice(2));
-  const NetworkShape shape{16, 3, 12, 4};
+  const NetworkShape shape = NetworkShape::ForTree(16, tree, 4);
   const Network network(shape, testing_support::SmallOptions(), 5);
   const DescriptorMatrix descriptors = RandomDescriptors(200, shape.descriptor_dim, 6);
   const std::vector<uint32_t> images = {0, 3, 4};

@@ -8,8 +8,8 @@
 #include <vector>
 
 #include "map/label_tree.h"
-#include "model/network.h"
 #include "map/visibility.h"
+#include "model/network.h"
 
 namespace hscloc {
 

@@ -28,12 +28,22 @@ struct LevelWeights {
   const float* trunk2_bias = nullptr;
   const float* image_embedding = nullptr;      // [num_images + 1, E]
   std::vector<const float*> label_embeddings;  // one [branching, E] table per coarser level
+  // Node conditioning: [nodes at the parents' depth, E], row = node id - node_embedding_first.
+  const float* node_embedding = nullptr;
+  int64_t node_embedding_first = 0;
   const float* generator_weight = nullptr;
   const float* generator_bias = nullptr;
   std::vector<const float*> gamma_weights, gamma_biases, beta_weights, beta_biases;
   std::vector<const float*> conditioned_weights, conditioned_biases;
-  const float* output_weight = nullptr;
+  const float* output_weight = nullptr;  // the shared output (node_output_dim == 0)
   const float* output_bias = nullptr;
+  // Node output rows: projection [r, C] and [r]; rows [nodes at the children's depth, r + 1]
+  // (weights, then the bias), row = node id - node_rows_first.
+  int64_t node_output_dim = 0;
+  const float* projection_weight = nullptr;
+  const float* projection_bias = nullptr;
+  const float* node_rows = nullptr;
+  int64_t node_rows_first = 0;
 };
 
 // One level of the network (see model/network.h for the equations).
@@ -43,19 +53,32 @@ class LevelImpl : public torch::nn::Module {
 
   // [N, D] normalized descriptors -> [N, C].
   torch::Tensor Trunk(const torch::Tensor& descriptors);
-  // image_indices [R] and prefix_labels [R, level] (int64) -> the modulation of R rows.
-  LevelModulation Generate(const torch::Tensor& image_indices, const torch::Tensor& prefix_labels);
+  // image_indices [R], prefix_labels [R, level] and parent_nodes [R] (the tree node of the prefix;
+  // int64) -> the modulation of R rows. Label-sum conditioning reads the labels, node
+  // conditioning the parent nodes.
+  LevelModulation Generate(const torch::Tensor& image_indices, const torch::Tensor& prefix_labels,
+                           const torch::Tensor& parent_nodes);
   // W_i h + b_i of conditioned layer i.
   torch::Tensor ConditionedLinear(int layer, const torch::Tensor& features);
-  torch::Tensor Logits(const torch::Tensor& features);
+  // [R, branching] logits. child_nodes [R, branching] holds each row's children's node ids (-1:
+  // no such child); node output rows read them and give -inf where there is no child; the shared
+  // output ignores them (the paper: every label has a logit).
+  torch::Tensor Logits(const torch::Tensor& features, const torch::Tensor& child_nodes);
   // Throws std::logic_error unless every parameter is a contiguous fp32 CPU tensor.
   LevelWeights CpuWeights() const;
 
   // Teacher-forced logits [R, branching] of R (descriptor, image, prefix) rows.
   torch::Tensor forward(const torch::Tensor& descriptors, const torch::Tensor& image_indices,
-                        const torch::Tensor& prefix_labels);
+                        const torch::Tensor& prefix_labels, const torch::Tensor& parent_nodes,
+                        const torch::Tensor& child_nodes);
 
   int level() const { return level_; }
+  bool HasNodeOutput() const { return node_output_dim_ > 0; }
+  // Training gathers node rows with sparse gradients (only the rows a batch touches), for
+  // row-wise lazy Adam (model/lazy_adam.h).
+  void SetSparseNodeRows(bool sparse) { sparse_node_rows_ = sparse; }
+  // The node output rows (undefined without them): the table the trainer updates lazily.
+  torch::Tensor NodeRows() const { return node_rows_; }
   int NumConditionedLayers() const { return static_cast<int>(conditioned_.size()); }
 
  private:
@@ -72,8 +95,20 @@ class LevelImpl : public torch::nn::Module {
   std::vector<torch::nn::Linear> beta_heads_;
   std::vector<torch::nn::Linear> conditioned_;
   torch::nn::Linear output_{nullptr};
+  // Node conditioning and node output rows (NetworkOptions); first node ids of their depths.
+  torch::nn::Embedding node_embedding_{nullptr};
+  int64_t node_embedding_first_ = 0;
+  int64_t node_output_dim_ = 0;
+  torch::nn::Linear projection_{nullptr};
+  torch::Tensor node_rows_;
+  int64_t node_rows_first_ = 0;
+  bool sparse_node_rows_ = false;
 };
 TORCH_MODULE(Level);
+
+// Per row of a batch, the ids of the children of its parent node [R, branching], -1 past the
+// parent's last child or for parents < 0 (a path that left the tree).
+torch::Tensor ChildNodesOf(const LabelTree& tree, const int64_t* parent_nodes, int64_t rows);
 
 class HscNetImpl : public torch::nn::Module {
  public:

@@ -29,7 +29,11 @@ TEST(NetworkOptionsTest, ChecksNameTheField) {
   options = NetworkOptions();
   options.channels = 0;
   EXPECT_THROW(options.Check(), std::invalid_argument);
-  NetworkShape shape{64, 4, 257, 10};
+  NetworkShape shape;
+  shape.descriptor_dim = 64;
+  shape.levels = 4;
+  shape.branching = 257;
+  shape.num_images = 10;
   EXPECT_THROW(shape.Check(), std::invalid_argument);
   shape.branching = 100;
   EXPECT_NO_THROW(shape.Check());
@@ -37,6 +41,50 @@ TEST(NetworkOptionsTest, ChecksNameTheField) {
   EXPECT_THROW(shape.Check(), std::invalid_argument);
   EXPECT_EQ(ParseComputeDevice("cpu"), ComputeDevice::kCpu);
   EXPECT_THROW(ParseComputeDevice("tpu"), std::invalid_argument);
+  options = NetworkOptions();
+  options.node_output_dim = -1;
+  EXPECT_THROW(
+      try { options.Check(); } catch (const std::invalid_argument& error) {
+        EXPECT_THAT(error.what(), HasSubstr("node_output_dim"));
+        throw;
+      },
+      std::invalid_argument);
+  shape = NetworkShape{64, 4, 100, 10, {1, 100, 200}};  // 3 depths for 4 levels
+  EXPECT_THROW(
+      try { shape.Check(); } catch (const std::invalid_argument& error) {
+        EXPECT_THAT(error.what(), HasSubstr("nodes_per_depth"));
+        throw;
+      },
+      std::invalid_argument);
+}
+
+TEST(NetworkOptionsTest, PerNodeTablesNeedTheTreesNodeCounts) {
+  const RandomMap map = MakeRandomMap(1);
+  NetworkShape without_counts = map.shape;
+  without_counts.nodes_per_depth.clear();
+  EXPECT_NO_THROW(Network(without_counts, NetworkOptions::PaperFaithful(), 1));
+  for (const NetworkOptions& options : testing_support::HeadVariants(SmallOptions())) {
+    if (!options.NeedsNodeCounts()) continue;
+    EXPECT_THROW(
+        try { Network(without_counts, options, 1); } catch (const std::invalid_argument& error) {
+          EXPECT_THAT(error.what(), HasSubstr("nodes_per_depth"));
+          throw;
+        },
+        std::invalid_argument);
+  }
+  // Counts of another tree are refused at prediction time.
+  const RandomMap other = MakeRandomMap(2);
+  const Network network(map.shape, SmallOptions(), 1);
+  if (!(other.shape == map.shape)) {
+    EXPECT_THROW(network.Predict(RandomDescriptors(3, 24, 1), {0}, other.tree),
+                 std::invalid_argument);
+  }
+  // The paper's configuration has no per-node table; node rows grow with the tree's nodes.
+  const Network paper(map.shape, NetworkOptions::PaperFaithful(), 1);
+  NetworkOptions rows = NetworkOptions::PaperFaithful();
+  rows.node_output_dim = 8;
+  const Network with_rows(map.shape, rows, 1);
+  EXPECT_GT(with_rows.NumParameters(), paper.NumParameters());
 }
 
 TEST(NetworkTest, PredictionsAreConsistentWithTheTree) {
@@ -154,6 +202,7 @@ TEST(NetworkTest, RejectsInputsThatDoNotFit) {
   EXPECT_THROW(network.Predict(descriptors, {0}, map.tree, &other), std::invalid_argument);
   NetworkShape deeper = map.shape;
   deeper.levels = 4;
+  deeper.nodes_per_depth.push_back(deeper.nodes_per_depth.back());
   const Network deeper_network(deeper, SmallOptions(), 1);
   EXPECT_THROW(deeper_network.Predict(descriptors, {0}, map.tree), std::invalid_argument);
   if (!IsComputeDeviceAvailable(ComputeDevice::kCuda)) {

@@ -6,8 +6,8 @@
 #include <vector>
 
 #include "map/label_tree.h"
-#include "model/network.h"
 #include "map/visibility.h"
+#include "model/network.h"
 #include "util/random.h"
 
 namespace hscloc::testing_support {
@@ -45,8 +45,21 @@ inline RandomMap MakeRandomMap(uint64_t seed) {
   }
   map.visibility =
       Visibility::FromObservations(num_images, points.size(), image_indices, point_indices);
-  map.shape = {24, tree_options.levels, tree_options.branching, num_images};
+  map.shape = NetworkShape::ForTree(24, map.tree, num_images);
   return map;
+}
+
+// The four combinations of the two per-node options (the first is the paper's network).
+inline std::vector<NetworkOptions> HeadVariants(NetworkOptions base) {
+  std::vector<NetworkOptions> variants;
+  for (const bool node_conditioning : {false, true}) {
+    for (const int node_output_dim : {0, 8}) {
+      base.node_conditioning = node_conditioning;
+      base.node_output_dim = node_output_dim;
+      variants.push_back(base);
+    }
+  }
+  return variants;
 }
 
 inline NetworkOptions SmallOptions() {

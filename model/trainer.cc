@@ -1,20 +1,23 @@
 #include "model/trainer.h"
 
-#include <ATen/Parallel.h>
 #include <fmt/format.h>
 #include <malloc.h>
-#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <numeric>
 #include <optional>
 
 #include "map/map_bundle.h"
+#include "model/lazy_adam.h"
+#include "model/network_decoding.h"
 #include "model/network_module.h"
+#include "model/training_batch.h"
+#include "model/training_checkpoint.h"
+#include "model/training_schedule.h"
 #include "util/check.h"
-#include "util/parallel.h"
 #include "util/progress_bar.h"
 #include "util/random.h"
 #include "util/timer.h"
@@ -22,10 +25,9 @@
 namespace hscloc {
 namespace {
 
-// Random stream keys (util/random.h).
+// Random stream key of the held-out split (util/random.h); model/training_batch.cc holds the
+// batches'.
 constexpr uint64_t kStreamHoldout = 0x686f6c64;  // "hold"
-constexpr uint64_t kStreamShuffle = 0x73687566;  // "shuf"
-constexpr uint64_t kStreamAugment = 0x6175676d;  // "augm"
 
 // Every training step allocates and frees the same few-megabyte activations. glibc's defaults hand
 // such blocks back to the kernel on free (mmap'd chunks, heap trimming), so each step page-faulted
@@ -35,97 +37,6 @@ void KeepFreedMemoryForReuse() {
   mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's largest: blocks below it come from the heap
   mallopt(M_TRIM_THRESHOLD, 1 << 30);
   mallopt(M_TOP_PAD, 64 << 20);
-}
-
-// Checkpoint layout version; the network inside carries its own.
-constexpr int64_t kCheckpointVersion = 1;
-
-// The training observations in the order the iterations consume them: an endless sequence of
-// permutations, one per epoch, each drawn from its own stream, so that any iteration's batch can
-// be found without replaying the ones before it (resume).
-class SampleOrder {
- public:
-  SampleOrder(std::vector<uint32_t> samples, uint64_t seed)
-      : samples_(std::move(samples)), seed_(seed) {}
-
-  uint32_t At(uint64_t position) {
-    const uint64_t epoch = position / samples_.size();
-    if (epoch != epoch_) Shuffle(epoch);
-    return permutation_[position % samples_.size()];
-  }
-
- private:
-  void Shuffle(uint64_t epoch) {
-    permutation_ = samples_;
-    Random random(seed_, {kStreamShuffle, epoch});
-    for (size_t i = permutation_.size(); i > 1; --i) {
-      std::swap(permutation_[i - 1], permutation_[random.UniformInt(i)]);
-    }
-    epoch_ = epoch;
-  }
-
-  std::vector<uint32_t> samples_;
-  uint64_t seed_;
-  uint64_t epoch_ = ~uint64_t{0};
-  std::vector<uint32_t> permutation_;
-};
-
-struct Batch {
-  torch::Tensor descriptors;  // [B, D], augmented, not yet normalized
-  torch::Tensor images;       // [B]
-  torch::Tensor labels;       // [B, levels]
-};
-
-Batch MakeBatch(const Scene& scene, const LabelTree& tree, const TrainerOptions& options,
-                SampleOrder& order, int64_t iteration, torch::Device device) {
-  const int64_t size = options.batch_size;
-  const int64_t dim = scene.Dimension();
-  const int levels = tree.levels();
-  std::vector<uint32_t> observations(size);
-  for (int64_t row = 0; row < size; ++row) {
-    observations[row] = order.At(static_cast<uint64_t>(iteration * size + row));
-  }
-  torch::Tensor descriptors = torch::empty({size, dim}, torch::kFloat32);
-  torch::Tensor images = torch::empty({size}, torch::kInt64);
-  torch::Tensor labels = torch::empty({size, levels}, torch::kInt64);
-  float* descriptor_data = descriptors.data_ptr<float>();
-  int64_t* image_data = images.data_ptr<int64_t>();
-  int64_t* label_data = labels.data_ptr<int64_t>();
-  const DescriptorAugmentationOptions& augmentation = options.augmentation;
-  const double noise_sigma = augmentation.noise_norm / std::sqrt(static_cast<double>(dim));
-  const uint32_t no_image = static_cast<uint32_t>(scene.NumImages());
-  at::parallel_for(0, size, 64, [&](int64_t begin, int64_t end) {
-    for (int64_t row = begin; row < end; ++row) {
-      const uint32_t observation = observations[row];
-      Random random(options.seed,
-                    {kStreamAugment, static_cast<uint64_t>(iteration), static_cast<uint64_t>(row)});
-      Eigen::Map<Eigen::VectorXf> x(descriptor_data + row * dim, dim);
-      x = scene.observation_descriptors.row(observation).transpose();
-      if (augmentation.enabled) {
-        x /= std::max(x.norm(), 1e-12f);
-        for (int64_t i = 0; i < dim; ++i) {
-          x[i] = random.Bernoulli(augmentation.dimension_dropout)
-                     ? 0.0f
-                     : x[i] + static_cast<float>(random.Normal(0, noise_sigma));
-        }
-      }
-      const bool drop_image = options.image_dropout > 0 && random.Bernoulli(options.image_dropout);
-      image_data[row] = drop_image ? no_image : scene.observation_image_indices[observation];
-      const LabelTree::Label* path =
-          tree.LabelsOfPoint(scene.observation_point_indices[observation]);
-      std::copy(path, path + levels, label_data + row * levels);
-    }
-  });
-  return {descriptors.to(device), images.to(device), labels.to(device)};
-}
-
-// The learning rate after the halvings whose budget fraction `progress` has reached.
-double ScheduledLearningRate(const TrainerOptions& options, double progress) {
-  double rate = options.learning_rate;
-  for (const double fraction : options.halving_fractions) {
-    if (progress >= fraction) rate *= 0.5;
-  }
-  return rate;
 }
 
 void SetLearningRate(torch::optim::Adam& optimizer, double rate) {
@@ -142,65 +53,331 @@ std::string FormatAccuracies(const std::vector<double>& accuracies) {
   return text;
 }
 
-torch::Tensor LogToTensor(const std::vector<TrainingLogEntry>& log, int levels) {
-  const int64_t columns = 4 + levels;
-  torch::Tensor tensor = torch::zeros({static_cast<int64_t>(log.size()), columns}, torch::kFloat64);
-  for (size_t i = 0; i < log.size(); ++i) {
-    double* row = tensor.data_ptr<double>() + i * columns;
-    row[0] = static_cast<double>(log[i].iteration);
-    row[1] = log[i].seconds;
-    row[2] = log[i].learning_rate;
-    row[3] = log[i].loss;
-    std::copy(log[i].level_accuracies.begin(), log[i].level_accuracies.end(), row + 4);
-  }
-  return tensor;
-}
-
-std::vector<TrainingLogEntry> LogFromTensor(const torch::Tensor& tensor, int levels) {
-  const torch::Tensor cpu = tensor.to(torch::kCPU).to(torch::kFloat64).contiguous();
-  std::vector<TrainingLogEntry> log(cpu.size(0));
-  for (size_t i = 0; i < log.size(); ++i) {
-    const double* row = cpu.data_ptr<double>() + i * (4 + levels);
-    log[i] = {static_cast<int64_t>(row[0]), row[1], row[2], row[3],
-              std::vector<double>(row + 4, row + 4 + levels)};
-  }
-  return log;
-}
-
-struct TrainingState {
-  int64_t iteration = 0;
-  double seconds_before = 0;
-  std::vector<TrainingLogEntry> log;
+// A batch's loss (the sum of the levels' cross-entropies) and each level's teacher-forced
+// accuracy (1 where the level has no choice).
+struct BatchLoss {
+  torch::Tensor loss;
+  std::vector<torch::Tensor> accuracies;
 };
 
-void SaveCheckpoint(const std::filesystem::path& path, const Network& network,
-                    torch::optim::Adam& optimizer, const TrainingState& state,
-                    const TrainerOptions& options) {
-  torch::serialize::OutputArchive archive;
-  archive.write("checkpoint_version", torch::tensor({kCheckpointVersion}, torch::kInt64));
-  torch::serialize::OutputArchive network_archive;
-  NetworkInternals::SaveTo(network, network_archive);
-  archive.write("network", network_archive);
-  torch::serialize::OutputArchive optimizer_archive;
-  optimizer.save(optimizer_archive);
-  archive.write("optimizer", optimizer_archive);
-  archive.write("iteration", torch::tensor({state.iteration}, torch::kInt64));
-  archive.write("seconds", torch::tensor({state.seconds_before}, torch::kFloat64));
-  archive.write("seed", torch::tensor({static_cast<int64_t>(options.seed)}, torch::kInt64));
-  archive.write("log", LogToTensor(state.log, network.shape().levels));
-  // A crash while writing must not destroy the previous checkpoint.
-  const std::filesystem::path partial = path.string() + ".partial";
-  archive.save_to(partial.string());
-  std::filesystem::rename(partial, path);
+// One TrainNetwork call: the network, its optimizers, the state a checkpoint keeps, and the
+// training loop. It lives only for that call, so it holds the scene, tree and options by
+// reference.
+class Trainer {
+ public:
+  // Creates the network from the seed, or restores it from the checkpoint (options.resume).
+  Trainer(const Scene& scene, const LabelTree& tree, const TrainerOptions& options,
+          std::vector<uint32_t> training);
+
+  // Trains until the budget is spent; the result holds the network to keep.
+  TrainingResult Run();
+
+ private:
+  // Setup, in the order the constructor runs it; `checkpoint` is null without a resume.
+  void CreateOrRestoreNetwork(CheckpointReader* checkpoint);
+  void CreateOptimizers(CheckpointReader* checkpoint);
+  void PrepareVisibilityAndCheckSample();
+  // One optimizer step on the current iteration's batch; advances the iteration.
+  void Step();
+  BatchLoss Loss(const Batch& batch);
+  // Appends the means since the last entry to the log.
+  void FlushLog(int64_t iteration);
+  bool CheckDue() const;
+  void CheckHeldOut();
+  void KeepAsBest(double accuracy);
+  void BankElapsedTime();
+  void WriteCheckpoint();
+  // After the loop: the last log entry, check and checkpoint, and the network to return.
+  TrainingResult Finish();
+  bool RestoreBestNetwork();
+  TrainingResult Result(bool restored_best);
+  bool Converged() const;
+  double Elapsed() const { return state_.seconds_before + timer_.ElapsedSeconds(); }
+  double Progress() const { return budget_.Progress(state_.iteration, Elapsed()); }
+
+  const Scene& scene_;
+  const LabelTree& tree_;
+  const TrainerOptions& options_;
+  const torch::Device device_;
+  const NetworkShape shape_;
+  const int levels_;
+  SampleOrder order_;  // the training observations
+  TrainingBudget budget_;
+  TrainingState state_;
+  std::optional<Network> network_;
+  HscNet module_{nullptr};
+  std::optional<torch::optim::Adam> optimizer_;
+  std::vector<LazyAdamTable> lazy_;
+  Visibility visibility_;
+  std::unique_ptr<NodeVisibilityMasks> node_masks_;
+  std::vector<uint32_t> check_sample_;
+  bool checking_ = false;  // held-out checks are due (evaluations, and a sample to check)
+  std::optional<ProgressBar> progress_;
+  Timer timer_;
+  // Sums since the last log entry, kept on the device so that no iteration waits for a copy.
+  torch::Tensor sums_;
+  int64_t iterations_in_sums_ = 0;
+  double learning_rate_ = 0;  // the last step's
+  std::string check_status_;  // the last check's, shown after the loss
+};
+
+Trainer::Trainer(const Scene& scene, const LabelTree& tree, const TrainerOptions& options,
+                 std::vector<uint32_t> training)
+    : scene_(scene),
+      tree_(tree),
+      options_(options),
+      device_(TorchDevice(options.device)),
+      shape_(NetworkShape::ForTree(static_cast<int>(scene.Dimension()), tree,
+                                   static_cast<int>(scene.NumImages()))),
+      levels_(shape_.levels),
+      order_(std::move(training), options.seed) {
+  budget_ = BudgetOf(options, order_.size());
+  std::optional<CheckpointReader> checkpoint;
+  if (options.resume && !options.checkpoint_path.empty() &&
+      std::filesystem::exists(options.checkpoint_path)) {
+    checkpoint.emplace(options.checkpoint_path, device_);
+  }
+  CheckpointReader* resume_from = checkpoint ? &*checkpoint : nullptr;
+  CreateOrRestoreNetwork(resume_from);
+  CreateOptimizers(resume_from);
+  PrepareVisibilityAndCheckSample();
 }
 
-int64_t ReadScalar(torch::serialize::InputArchive& archive, const char* key,
-                   const std::string& source) {
-  torch::Tensor tensor;
-  if (!archive.try_read(key, tensor) || tensor.numel() != 1) {
-    ThrowInvalidArgument("{}: not a training checkpoint ('{}' missing)", source, key);
+void Trainer::CreateOrRestoreNetwork(CheckpointReader* checkpoint) {
+  if (checkpoint != nullptr) {
+    network_.emplace(checkpoint->ReadNetwork(shape_, options_.network, options_.device));
+    state_ = checkpoint->ReadState(levels_, options_.seed);
+  } else {
+    network_.emplace(shape_, options_.network, options_.seed);
+    network_->SetDevice(options_.device);
   }
-  return tensor.to(torch::kCPU).to(torch::kInt64).item<int64_t>();
+  module_ = NetworkInternals::Module(*network_);
+  module_->train();
+}
+
+void Trainer::CreateOptimizers(CheckpointReader* checkpoint) {
+  // Node output rows go to lazy Adam (sparse gradients), everything else to dense Adam.
+  std::vector<torch::Tensor> dense_parameters;
+  for (Level& level : module_->levels) {
+    level->SetSparseNodeRows(options_.sparse_node_updates && level->HasNodeOutput());
+  }
+  for (const auto& item : module_->named_parameters()) {
+    const bool node_rows = item.key().find("node_rows") != std::string::npos;
+    if (node_rows && options_.sparse_node_updates) {
+      lazy_.push_back(LazyAdamTable::Of(item.value()));
+    } else {
+      dense_parameters.push_back(item.value());
+    }
+  }
+  optimizer_.emplace(dense_parameters, torch::optim::AdamOptions(options_.learning_rate));
+  if (checkpoint != nullptr) checkpoint->RestoreOptimizers(*optimizer_, lazy_);
+}
+
+void Trainer::PrepareVisibilityAndCheckSample() {
+  // The visibility of every database image, per tree node, for the visibility softmax and the
+  // held-out checks (masked decoding, as the localizer's visibility filter sees it).
+  visibility_ = Visibility::FromObservations(scene_.NumImages(), scene_.NumPoints(),
+                                             scene_.observation_image_indices,
+                                             scene_.observation_point_indices);
+  if (options_.visibility_softmax) {
+    std::vector<uint32_t> all_images(scene_.NumImages());
+    std::iota(all_images.begin(), all_images.end(), 0u);
+    node_masks_ = std::make_unique<NodeVisibilityMasks>(all_images, tree_, visibility_);
+  }
+  // The held-out sample of the checks: evenly spaced over the held-out observations.
+  const std::vector<uint32_t> held_out =
+      HeldOutObservations(scene_, options_.holdout_fraction, options_.holdout_seed);
+  const size_t wanted = std::min<size_t>(held_out.size(), options_.evaluation_observations);
+  for (size_t i = 0; i < wanted; ++i) {
+    check_sample_.push_back(held_out[i * held_out.size() / wanted]);
+  }
+  checking_ = options_.evaluations > 0 && !check_sample_.empty();
+}
+
+TrainingResult Trainer::Run() {
+  // The bar counts this run's steps (a resumed run's rate and ETA would otherwise include the
+  // steps before the resume).
+  const int64_t budget_iterations = budget_.iterations;
+  progress_.emplace(
+      "train",
+      budget_iterations > 0 ? budget_iterations - std::min(state_.iteration, budget_iterations) : 0,
+      options_.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
+  timer_.Restart();
+  sums_ = torch::zeros({1 + levels_}, torch::TensorOptions().device(device_));
+  learning_rate_ = ScheduledLearningRate(options_, Progress());
+  while (!budget_.Spent(state_.iteration, Elapsed())) {
+    Step();
+    progress_->Advance();
+    if (state_.iteration % options_.log_every_iterations == 0) FlushLog(state_.iteration);
+    if (CheckDue()) CheckHeldOut();
+    if (!options_.checkpoint_path.empty() &&
+        state_.iteration % options_.checkpoint_every_iterations == 0) {
+      BankElapsedTime();
+      WriteCheckpoint();
+    }
+  }
+  return Finish();
+}
+
+void Trainer::Step() {
+  learning_rate_ = ScheduledLearningRate(options_, Progress());
+  SetLearningRate(*optimizer_, learning_rate_);
+  const BatchContext context{scene_, tree_, options_, node_masks_.get(),
+                             options_.network.node_output_dim > 0};
+  const Batch batch = MakeBatch(context, order_, state_.iteration, device_);
+  BatchLoss loss = Loss(batch);
+  optimizer_->zero_grad();
+  loss.loss.backward();
+  optimizer_->step();
+  for (LazyAdamTable& table : lazy_) table.Step(learning_rate_);
+  std::vector<torch::Tensor> statistics = std::move(loss.accuracies);
+  statistics.insert(statistics.begin(), loss.loss.detach());
+  sums_ += torch::stack(statistics);
+  ++iterations_in_sums_;
+  ++state_.iteration;
+}
+
+BatchLoss Trainer::Loss(const Batch& batch) {
+  const torch::Tensor descriptors = NormalizeRows(batch.descriptors);
+  BatchLoss result{torch::zeros({}, torch::TensorOptions().device(device_)), {}};
+  for (int level = 0; level < levels_; ++level) {
+    if (!tree_.LevelHasChoice(level)) {
+      // Nothing to learn: Predict takes the only child without running this level.
+      result.accuracies.push_back(torch::ones({}, torch::TensorOptions().device(device_)));
+      continue;
+    }
+    torch::Tensor logits = module_->levels[level]->forward(
+        descriptors, batch.images, batch.labels.narrow(1, 0, static_cast<int64_t>(level)),
+        batch.parent_nodes[level], batch.child_nodes[level]);
+    if (batch.allowed[level].defined()) {
+      logits = logits.masked_fill(batch.allowed[level].logical_not(),
+                                  -std::numeric_limits<float>::infinity());
+    }
+    const torch::Tensor target =
+        batch.targets[level].defined() ? batch.targets[level] : batch.labels.select(1, level);
+    result.loss = result.loss + torch::nn::functional::cross_entropy(logits, target);
+    result.accuracies.push_back(logits.detach().argmax(1).eq(target).to(torch::kFloat32).mean());
+  }
+  return result;
+}
+
+void Trainer::FlushLog(int64_t iteration) {
+  if (iterations_in_sums_ == 0) return;
+  const torch::Tensor means = (sums_ / static_cast<double>(iterations_in_sums_)).to(torch::kCPU);
+  TrainingLogEntry entry{iteration, Elapsed(), learning_rate_, means[0].item<double>(), {}};
+  for (int level = 0; level < levels_; ++level) {
+    entry.level_accuracies.push_back(means[1 + level].item<double>());
+  }
+  progress_->SetStatus(fmt::format("loss {:.3f} acc {}{}", entry.loss,
+                                   FormatAccuracies(entry.level_accuracies), check_status_));
+  state_.log.push_back(std::move(entry));
+  sums_.zero_();
+  iterations_in_sums_ = 0;
+}
+
+bool Trainer::CheckDue() const {
+  const double next = static_cast<double>(state_.checks.size() + 1) / options_.evaluations;
+  return checking_ && next < 1 && Progress() >= next;
+}
+
+// A held-out check: masked point accuracy on the sample; keeps the best parameters.
+void Trainer::CheckHeldOut() {
+  if (!checking_) return;
+  if (!state_.checks.empty() && state_.checks.back().iteration == state_.iteration) return;
+  const double seconds_before_check = Elapsed();
+  module_->eval();
+  const NetworkEvaluation evaluation =
+      EvaluateNetwork(*network_, scene_, tree_, check_sample_, &visibility_);
+  module_->train();
+  state_.checks.push_back({state_.iteration, seconds_before_check, evaluation.leaf_accuracy});
+  if (evaluation.leaf_accuracy > state_.best_accuracy) KeepAsBest(evaluation.leaf_accuracy);
+  check_status_ = fmt::format(" held-out {:.1f}% (best {:.1f}%)", 100 * evaluation.leaf_accuracy,
+                              100 * state_.best_accuracy);
+  progress_->SetStatus(check_status_);
+}
+
+void Trainer::KeepAsBest(double accuracy) {
+  state_.best_accuracy = accuracy;
+  state_.best_iteration = state_.iteration;
+  if (options_.keep_best) {
+    torch::NoGradGuard no_grad;
+    state_.best_parameters.clear();
+    for (const torch::Tensor& parameter : module_->parameters()) {
+      state_.best_parameters.push_back(parameter.detach().clone());
+    }
+  }
+}
+
+// Adds the time since the timer's start to the state's (what a checkpoint records).
+void Trainer::BankElapsedTime() {
+  state_.seconds_before = Elapsed();
+  timer_.Restart();
+}
+
+void Trainer::WriteCheckpoint() {
+  SaveCheckpoint(options_.checkpoint_path, *network_, *optimizer_, lazy_, state_, options_.seed);
+}
+
+TrainingResult Trainer::Finish() {
+  FlushLog(state_.iteration);
+  CheckHeldOut();
+  progress_->Finish();
+  BankElapsedTime();
+  if (!options_.checkpoint_path.empty()) WriteCheckpoint();
+  module_->eval();
+  for (Level& level : module_->levels) level->SetSparseNodeRows(false);
+  const bool restored_best = RestoreBestNetwork();
+  return Result(restored_best);
+}
+
+// Early stopping: the best held-out network, where a later one was worse.
+bool Trainer::RestoreBestNetwork() {
+  const bool restore = options_.keep_best && !state_.best_parameters.empty() &&
+                       !state_.checks.empty() &&
+                       state_.checks.back().point_accuracy < state_.best_accuracy;
+  if (restore) {
+    torch::NoGradGuard no_grad;
+    const std::vector<torch::Tensor> parameters = module_->parameters();
+    for (size_t i = 0; i < parameters.size(); ++i) parameters[i].copy_(state_.best_parameters[i]);
+  }
+  return restore;
+}
+
+TrainingResult Trainer::Result(bool restored_best) {
+  const size_t num_training = order_.size();
+  TrainingResult result{std::move(*network_),
+                        state_.iteration,
+                        state_.seconds_before,
+                        0,
+                        {},
+                        num_training,
+                        scene_.NumObservations() - num_training,
+                        std::move(state_.log),
+                        state_.checks};
+  if (!result.log.empty()) {
+    result.final_loss = result.log.back().loss;
+    result.final_level_accuracies = result.log.back().level_accuracies;
+  }
+  if (!state_.checks.empty()) {
+    result.best_iteration = restored_best ? state_.best_iteration : state_.checks.back().iteration;
+    result.best_held_out_accuracy =
+        restored_best ? state_.best_accuracy : state_.checks.back().point_accuracy;
+    result.converged = Converged();
+  }
+  return result;
+}
+
+// Converged: the last quarter of the budget gained less than 5 % of the accuracy reached.
+bool Trainer::Converged() const {
+  const double final_progress = budget_.Progress(state_.iteration, state_.seconds_before);
+  double at_three_quarters = state_.checks.front().point_accuracy;
+  for (const HeldOutCheck& check : state_.checks) {
+    if (budget_.Progress(check.iteration, check.seconds) <= 0.75 * final_progress) {
+      at_three_quarters = check.point_accuracy;
+    }
+  }
+  return state_.checks.size() >= 2 &&
+         state_.best_accuracy - at_three_quarters < 0.05 * state_.best_accuracy;
 }
 
 }  // namespace
@@ -218,8 +395,14 @@ void TrainerOptions::Check() const {
   THROW_CHECK_MSG(max_iterations >= 0, "TrainerOptions.max_iterations = {}", max_iterations);
   THROW_CHECK_MSG(max_minutes >= 0 && std::isfinite(max_minutes), "TrainerOptions.max_minutes = {}",
                   max_minutes);
-  THROW_CHECK_MSG(max_iterations > 0 || max_minutes > 0,
-                  "TrainerOptions: max_iterations or max_minutes must be positive");
+  THROW_CHECK_MSG(epochs >= 0 && std::isfinite(epochs), "TrainerOptions.epochs = {}", epochs);
+  THROW_CHECK_MSG(warmup_fraction >= 0 && warmup_fraction < 1,
+                  "TrainerOptions.warmup_fraction = {}", warmup_fraction);
+  THROW_CHECK_MSG(final_rate_fraction > 0 && final_rate_fraction <= 1,
+                  "TrainerOptions.final_rate_fraction = {}", final_rate_fraction);
+  THROW_CHECK_MSG(evaluations >= 0, "TrainerOptions.evaluations = {}", evaluations);
+  THROW_CHECK_MSG(evaluation_observations > 0, "TrainerOptions.evaluation_observations = {}",
+                  evaluation_observations);
   THROW_CHECK_MSG(batch_size > 0, "TrainerOptions.batch_size = {}", batch_size);
   THROW_CHECK_MSG(learning_rate > 0 && std::isfinite(learning_rate),
                   "TrainerOptions.learning_rate = {}", learning_rate);
@@ -250,6 +433,22 @@ std::string TrainingResult::LogCsv() const {
   return csv;
 }
 
+double DefaultEpochs(size_t num_training_observations) {
+  // Small maps need many passes (few views per point); large ones fewer, each pass being longer.
+  const double n = std::max<double>(1, static_cast<double>(num_training_observations));
+  return std::clamp(12.0 * std::sqrt(1e6 / n), 10.0, 400.0);
+}
+
+NetworkOptions DefaultNetworkOptions(size_t num_points) {
+  // The node output rows are most of the network's bytes: at most about 6 M numbers (24 MB), so
+  // that the HSC bundle stays under a fifth of the nearest-neighbour map (docs/decisions.md).
+  NetworkOptions options;
+  int rows = 64;
+  while (rows > 16 && static_cast<double>(num_points) * (rows + 1) > 6e6) rows /= 2;
+  options.node_output_dim = rows;
+  return options;
+}
+
 bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed) {
   const uint64_t hash = MixBits(MixBits(seed ^ kStreamHoldout) ^ MixBits(index));
   return static_cast<double>(hash >> 11) * 0x1.0p-53 < fraction;
@@ -277,159 +476,10 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
     }
   }
   if (training.empty()) ThrowInvalidArgument("train: the scene has no training observations");
-  const size_t num_training = training.size();
-  const size_t num_held_out = scene.NumObservations() - num_training;
-
   SetComputeThreads(options.num_threads);
   KeepFreedMemoryForReuse();
-  const torch::Device device = TorchDevice(options.device);
-  const NetworkShape shape{static_cast<int>(scene.Dimension()), tree.levels(), tree.branching(),
-                           static_cast<int>(scene.NumImages())};
-  const int levels = shape.levels;
-
-  TrainingState state;
-  std::optional<Network> network;
-  torch::serialize::InputArchive checkpoint;
-  const std::string checkpoint_source = options.checkpoint_path.string();
-  const bool resuming = options.resume && !options.checkpoint_path.empty() &&
-                        std::filesystem::exists(options.checkpoint_path);
-  if (resuming) {
-    try {
-      checkpoint.load_from(checkpoint_source, device);
-    } catch (const c10::Error& error) {
-      ThrowInvalidArgument("{}: not a training checkpoint: {}", checkpoint_source,
-                           error.what_without_backtrace());
-    }
-    if (ReadScalar(checkpoint, "checkpoint_version", checkpoint_source) != kCheckpointVersion) {
-      ThrowInvalidArgument("{}: checkpoint of another version", checkpoint_source);
-    }
-    torch::serialize::InputArchive network_archive;
-    if (!checkpoint.try_read("network", network_archive)) {
-      ThrowInvalidArgument("{}: checkpoint without a network", checkpoint_source);
-    }
-    network.emplace(NetworkInternals::LoadFrom(network_archive, checkpoint_source, options.device));
-    if (!(network->shape() == shape) || !(network->options() == options.network)) {
-      ThrowInvalidArgument("{}: the checkpoint's network has another shape or other options",
-                           checkpoint_source);
-    }
-    if (ReadScalar(checkpoint, "seed", checkpoint_source) != static_cast<int64_t>(options.seed)) {
-      spdlog::warn("{}: resuming with another seed than the checkpoint was trained with",
-                   checkpoint_source);
-    }
-    state.iteration = ReadScalar(checkpoint, "iteration", checkpoint_source);
-    torch::Tensor seconds;
-    torch::Tensor log;
-    checkpoint.read("seconds", seconds);
-    checkpoint.read("log", log);
-    state.seconds_before = seconds.to(torch::kCPU).item<double>();
-    state.log = LogFromTensor(log, levels);
-    spdlog::info("resuming from {} at iteration {}", checkpoint_source, state.iteration);
-  } else {
-    network.emplace(shape, options.network, options.seed);
-    network->SetDevice(options.device);
-  }
-
-  HscNet& module = NetworkInternals::Module(*network);
-  module->train();
-  torch::optim::Adam optimizer(module->parameters(),
-                               torch::optim::AdamOptions(options.learning_rate));
-  if (resuming) {
-    torch::serialize::InputArchive optimizer_archive;
-    if (!checkpoint.try_read("optimizer", optimizer_archive)) {
-      ThrowInvalidArgument("{}: checkpoint without optimizer state", checkpoint_source);
-    }
-    optimizer.load(optimizer_archive);
-  }
-
-  SampleOrder order(std::move(training), options.seed);
-  const double max_seconds = options.max_minutes * 60;
-  const int64_t max_iterations =
-      options.max_iterations > 0 ? options.max_iterations : std::numeric_limits<int64_t>::max();
-  const auto progress_of = [&](int64_t iteration, double seconds) {
-    double progress = 0;
-    if (options.max_iterations > 0) {
-      progress = static_cast<double>(iteration) / static_cast<double>(options.max_iterations);
-    }
-    if (max_seconds > 0) progress = std::max(progress, seconds / max_seconds);
-    return progress;
-  };
-
-  ProgressBar progress(
-      "train", options.max_iterations > 0 ? options.max_iterations : 0,
-      options.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
-  progress.Advance(static_cast<uint64_t>(std::min(state.iteration, max_iterations)));
-  Timer timer;
-  const auto elapsed = [&] { return state.seconds_before + timer.ElapsedSeconds(); };
-  // Sums since the last log entry, kept on the device so that no iteration waits for a copy.
-  torch::Tensor sums = torch::zeros({1 + levels}, torch::TensorOptions().device(device));
-  int64_t iterations_in_sums = 0;
-  double learning_rate = ScheduledLearningRate(options, progress_of(state.iteration, elapsed()));
-
-  const auto flush_log = [&](int64_t iteration) {
-    if (iterations_in_sums == 0) return;
-    const torch::Tensor means = (sums / static_cast<double>(iterations_in_sums)).to(torch::kCPU);
-    TrainingLogEntry entry{iteration, elapsed(), learning_rate, means[0].item<double>(), {}};
-    for (int level = 0; level < levels; ++level) {
-      entry.level_accuracies.push_back(means[1 + level].item<double>());
-    }
-    progress.SetStatus(
-        fmt::format("loss {:.3f} acc {}", entry.loss, FormatAccuracies(entry.level_accuracies)));
-    state.log.push_back(std::move(entry));
-    sums.zero_();
-    iterations_in_sums = 0;
-  };
-
-  while (state.iteration < max_iterations && !(max_seconds > 0 && elapsed() >= max_seconds)) {
-    learning_rate = ScheduledLearningRate(options, progress_of(state.iteration, elapsed()));
-    SetLearningRate(optimizer, learning_rate);
-    const Batch batch = MakeBatch(scene, tree, options, order, state.iteration, device);
-    const torch::Tensor descriptors = NormalizeRows(batch.descriptors);
-    torch::Tensor loss = torch::zeros({}, torch::TensorOptions().device(device));
-    std::vector<torch::Tensor> statistics;
-    for (int level = 0; level < levels; ++level) {
-      if (!tree.LevelHasChoice(level)) {
-        // Nothing to learn: Predict takes the only child without running this level.
-        statistics.push_back(torch::ones({}, torch::TensorOptions().device(device)));
-        continue;
-      }
-      const torch::Tensor logits = module->levels[level]->forward(
-          descriptors, batch.images, batch.labels.narrow(1, 0, static_cast<int64_t>(level)));
-      const torch::Tensor target = batch.labels.select(1, level);
-      loss = loss + torch::nn::functional::cross_entropy(logits, target);
-      statistics.push_back(logits.detach().argmax(1).eq(target).to(torch::kFloat32).mean());
-    }
-    optimizer.zero_grad();
-    loss.backward();
-    optimizer.step();
-    statistics.insert(statistics.begin(), loss.detach());
-    sums += torch::stack(statistics);
-    ++iterations_in_sums;
-    ++state.iteration;
-    progress.Advance();
-    if (state.iteration % options.log_every_iterations == 0) flush_log(state.iteration);
-    if (!options.checkpoint_path.empty() &&
-        state.iteration % options.checkpoint_every_iterations == 0) {
-      state.seconds_before = elapsed();
-      timer.Restart();
-      SaveCheckpoint(options.checkpoint_path, *network, optimizer, state, options);
-    }
-  }
-  flush_log(state.iteration);
-  progress.Finish();
-  state.seconds_before = elapsed();
-  timer.Restart();
-  if (!options.checkpoint_path.empty()) {
-    SaveCheckpoint(options.checkpoint_path, *network, optimizer, state, options);
-  }
-  module->eval();
-
-  TrainingResult result{std::move(*network), state.iteration, state.seconds_before, 0, {},
-                        num_training,        num_held_out,    std::move(state.log)};
-  if (!result.log.empty()) {
-    result.final_loss = result.log.back().loss;
-    result.final_level_accuracies = result.log.back().level_accuracies;
-  }
-  return result;
+  Trainer trainer(scene, tree, options, std::move(training));
+  return trainer.Run();
 }
 
 NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, const LabelTree& tree,
@@ -477,8 +527,7 @@ void WriteNetworkToBundle(
     const TrainerOptions& options,
     const std::vector<std::pair<std::string, NetworkEvaluation>>& evaluations) {
   MapBundleWriter writer = MapBundleWriter::Update(bundle_dir);
-  writer.AddBlob(map_blobs::kNetwork,
-                 [&](std::ostream& stream) { result.network.Save(stream); });
+  writer.AddBlob(map_blobs::kNetwork, [&](std::ostream& stream) { result.network.Save(stream); });
   const std::string csv = result.LogCsv();
   writer.AddBlob(map_blobs::kTrainingLog,
                  [&](std::ostream& stream) { stream.write(csv.data(), csv.size()); });
@@ -493,26 +542,34 @@ void WriteNetworkToBundle(
   json["options"] = {{"channels", network_options.channels},
                      {"trunk_channels", network_options.trunk_channels},
                      {"embedding_dim", network_options.embedding_dim},
-                     {"conditioned_layers", network_options.conditioned_layers}};
+                     {"conditioned_layers", network_options.conditioned_layers},
+                     {"node_conditioning", network_options.node_conditioning},
+                     {"node_output_dim", network_options.node_output_dim}};
   json["parameters"] = result.network.NumParameters();
-  json["training"] = {{"iterations", result.iterations},
-                      {"seconds", result.seconds},
-                      {"final_loss", result.final_loss},
-                      {"final_level_accuracies", result.final_level_accuracies},
-                      {"batch_size", options.batch_size},
-                      {"learning_rate", options.learning_rate},
-                      {"halving_fractions", options.halving_fractions},
-                      {"augmentation",
-                       {{"enabled", options.augmentation.enabled},
-                        {"noise_norm", options.augmentation.noise_norm},
-                        {"dimension_dropout", options.augmentation.dimension_dropout}}},
-                      {"image_dropout", options.image_dropout},
-                      {"seed", options.seed},
-                      {"holdout_fraction", options.holdout_fraction},
-                      {"holdout_seed", options.holdout_seed},
-                      {"training_observations", result.num_training_observations},
-                      {"held_out_observations", result.num_held_out_observations},
-                      {"device", ComputeDeviceName(options.device)}};
+  json["training"] = {
+      {"iterations", result.iterations},
+      {"seconds", result.seconds},
+      {"final_loss", result.final_loss},
+      {"final_level_accuracies", result.final_level_accuracies},
+      {"batch_size", options.batch_size},
+      {"learning_rate", options.learning_rate},
+      {"halving_fractions", options.halving_fractions},
+      {"schedule", options.schedule == LearningRateSchedule::kOneCycle ? "one_cycle" : "halving"},
+      {"visibility_softmax", options.visibility_softmax},
+      {"best_iteration", result.best_iteration},
+      {"best_held_out_accuracy", result.best_held_out_accuracy},
+      {"converged", result.converged},
+      {"augmentation",
+       {{"enabled", options.augmentation.enabled},
+        {"noise_norm", options.augmentation.noise_norm},
+        {"dimension_dropout", options.augmentation.dimension_dropout}}},
+      {"image_dropout", options.image_dropout},
+      {"seed", options.seed},
+      {"holdout_fraction", options.holdout_fraction},
+      {"holdout_seed", options.holdout_seed},
+      {"training_observations", result.num_training_observations},
+      {"held_out_observations", result.num_held_out_observations},
+      {"device", ComputeDeviceName(options.device)}};
   nlohmann::json evaluation_json = nlohmann::json::object();
   for (const auto& [name, evaluation] : evaluations) {
     evaluation_json[name] = {{"observations", evaluation.num_observations},

@@ -20,9 +20,9 @@
 #include <vector>
 
 #include "map/label_tree.h"
+#include "map/visibility.h"
 #include "model/network.h"
 #include "scene/scene.h"
-#include "map/visibility.h"
 
 namespace hscloc {
 
@@ -37,17 +37,44 @@ struct DescriptorAugmentationOptions {
   void Check() const;
 };
 
+// How the learning rate moves over the budget.
+enum class LearningRateSchedule {
+  kHalving,   // constant, halved at halving_fractions of the budget (the paper's steps)
+  kOneCycle,  // linear warm-up to learning_rate, then a cosine down to final_rate_fraction of it
+};
+
 struct TrainerOptions {
   NetworkOptions network;
-  // Budgets: training stops at whichever is reached first; 0 disables one (not both).
-  int64_t max_iterations = 30000;
+  // Budgets: training stops at whichever is reached first; 0 disables one. All three 0: an
+  // automatic budget in epochs from the map's size (DefaultEpochs).
+  int64_t max_iterations = 0;
   double max_minutes = 0;
+  double epochs = 0;  // passes over the training observations
   // Observations per step: on CPU, batches of 1024 train 3.4 times as many observations per second
   // as 256 (docs/decisions.md).
   int batch_size = 1024;
-  double learning_rate = 3e-3;  // Adam (docs/decisions.md)
-  // Fractions of the budget at which the learning rate halves.
+  double learning_rate = 3e-3;  // Adam, the peak of the one-cycle (docs/decisions.md)
+  LearningRateSchedule schedule = LearningRateSchedule::kOneCycle;
+  // One-cycle: fraction of the budget spent warming up, and the final rate over the peak.
+  double warmup_fraction = 0.05;
+  double final_rate_fraction = 0.02;
+  // Halving schedule: fractions of the budget at which the learning rate halves.
   std::vector<double> halving_fractions = {0.5, 0.75, 0.9};
+  // Each level's softmax only over the children whose subtree holds a point the sample's image
+  // observes (what masked decoding chooses among); samples without an image see every child.
+  // Worth 8 points of held-out accuracy on the city when decoded with the mask, but a network so
+  // trained must be decoded with it (the localizer's --masked-decoding): plain decoding loses most
+  // of its accuracy (docs/decisions.md). Off by default while the localizer decodes plainly.
+  bool visibility_softmax = false;
+  // Node output rows updated row-wise (lazy Adam on the rows a batch touches) rather than by
+  // dense Adam over the whole table every step.
+  bool sparse_node_updates = true;
+  // Held-out evaluations over the budget (masked point accuracy on up to
+  // evaluation_observations held-out observations); with keep_best the best network is returned
+  // (early stopping: more training never gives a worse network). 0: none.
+  int evaluations = 12;
+  int64_t evaluation_observations = 3000;
+  bool keep_best = true;
   DescriptorAugmentationOptions augmentation;
   // Probability of replacing a sample's image by the "no image" index, so that the network also
   // learns to classify without an image (the id-free ablation). It also regularizes: on maps with
@@ -81,6 +108,13 @@ struct TrainingLogEntry {
   std::vector<double> level_accuracies;
 };
 
+// One held-out evaluation during training.
+struct HeldOutCheck {
+  int64_t iteration = 0;
+  double seconds = 0;
+  double point_accuracy = 0;  // masked decoding
+};
+
 struct TrainingResult {
   Network network;
   int64_t iterations = 0;
@@ -90,10 +124,24 @@ struct TrainingResult {
   size_t num_training_observations = 0;
   size_t num_held_out_observations = 0;
   std::vector<TrainingLogEntry> log;
+  std::vector<HeldOutCheck> held_out_checks;
+  // The returned network's iteration and held-out accuracy (keep_best), or the last ones.
+  int64_t best_iteration = 0;
+  double best_held_out_accuracy = -1;  // -1: never evaluated
+  // Whether the held-out accuracy gained less than 5 % (relative) over the last quarter of the
+  // budget.
+  bool converged = false;
 
   // "iteration,seconds,learning_rate,loss,accuracy_level1,..." and one line per entry.
   std::string LogCsv() const;
 };
+
+// The epochs an automatic budget trains for a map of this many training observations: fewer
+// passes for larger maps, whose batches hold more distinct points (docs/decisions.md).
+double DefaultEpochs(size_t num_training_observations);
+// Widths for a map of this many points: the node output rows narrow on large maps so that the
+// bundle stays small.
+NetworkOptions DefaultNetworkOptions(size_t num_points);
 
 // Whether observation `index` belongs to the held-out fraction (a hash of index and seed).
 bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed);

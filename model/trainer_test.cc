@@ -5,13 +5,15 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <fstream>
+#include <functional>
 #include <iostream>
 #include <memory>
 
+#include "map/map_bundle.h"
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
-#include "map/map_bundle.h"
 #include "scene/scene_io.h"
 #include "synthetic/synthetic_city.h"
 #include "synthetic/synthetic_city_writer.h"
@@ -96,9 +98,7 @@ CityMap* TinyCityTrainerTest::map_ = nullptr;
 
 TEST(TrainerOptionsTest, ChecksNameTheField) {
   TrainerOptions options;
-  EXPECT_NO_THROW(options.Check());
-  options.max_iterations = 0;
-  EXPECT_THROW(options.Check(), std::invalid_argument);
+  EXPECT_NO_THROW(options.Check());  // no budget: automatic epochs
   options.max_minutes = 1;
   EXPECT_NO_THROW(options.Check());
   options.halving_fractions = {0.5, 1.5};
@@ -106,6 +106,27 @@ TEST(TrainerOptionsTest, ChecksNameTheField) {
   options = TrainerOptions();
   options.augmentation.dimension_dropout = 1;
   EXPECT_THROW(options.Check(), std::invalid_argument);
+  const auto expect_named = [](const std::function<void(TrainerOptions&)>& change,
+                               const std::string& field) {
+    TrainerOptions changed;
+    change(changed);
+    try {
+      changed.Check();
+      ADD_FAILURE() << field << " passed the check";
+    } catch (const std::invalid_argument& error) {
+      EXPECT_THAT(error.what(), ::testing::HasSubstr(field));
+    }
+  };
+  expect_named([](TrainerOptions& o) { o.epochs = -1; }, "epochs");
+  expect_named([](TrainerOptions& o) { o.warmup_fraction = 1; }, "warmup_fraction");
+  expect_named([](TrainerOptions& o) { o.final_rate_fraction = 0; }, "final_rate_fraction");
+  expect_named([](TrainerOptions& o) { o.evaluations = -1; }, "evaluations");
+  expect_named([](TrainerOptions& o) { o.evaluation_observations = 0; }, "evaluation_observations");
+  expect_named([](TrainerOptions& o) { o.network.node_output_dim = -2; }, "node_output_dim");
+  // Larger maps get fewer passes, and narrower node rows.
+  EXPECT_GT(DefaultEpochs(20000), DefaultEpochs(2000000));
+  EXPECT_GE(DefaultNetworkOptions(100000).node_output_dim,
+            DefaultNetworkOptions(2000000).node_output_dim);
 }
 
 TEST(TrainerTest, HeldOutSplitIsDeterministicAndNearTheFraction) {
@@ -124,12 +145,15 @@ TEST(TrainerTest, HeldOutSplitIsDeterministicAndNearTheFraction) {
 
 TEST_F(TinyCityTrainerTest, ReachesNinetyNinePercentOnItsTrainingObservations) {
   TrainerOptions options = QuickOptions(400);
+  options.visibility_softmax = true;
   const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
   EXPECT_EQ(result.iterations, 400);
   EXPECT_EQ(result.num_training_observations + result.num_held_out_observations,
             Map().scene.NumObservations());
-  const NetworkEvaluation training = EvaluateNetwork(result.network, Map().scene, Map().tree,
-                                                     TrainingObservations(Map().scene, options));
+  // Trained with the visibility softmax, the network is decoded with the visibility mask.
+  const NetworkEvaluation training =
+      EvaluateNetwork(result.network, Map().scene, Map().tree,
+                      TrainingObservations(Map().scene, options), &Map().visibility);
   const NetworkEvaluation held_out =
       EvaluateNetwork(result.network, Map().scene, Map().tree,
                       HeldOutObservations(Map().scene, options.holdout_fraction, 0));
@@ -141,7 +165,92 @@ TEST_F(TinyCityTrainerTest, ReachesNinetyNinePercentOnItsTrainingObservations) {
   EXPECT_GE(training.leaf_accuracy, 0.99);
   EXPECT_GE(training.level_accuracies.front(), training.leaf_accuracy);
   EXPECT_LT(result.final_loss, result.log.front().loss);
-  EXPECT_DOUBLE_EQ(result.log.back().learning_rate, options.learning_rate / 8);
+  // The one-cycle ends near its final rate.
+  EXPECT_NEAR(result.log.back().learning_rate, options.learning_rate * options.final_rate_fraction,
+              0.01 * options.learning_rate);
+}
+
+TEST_F(TinyCityTrainerTest, DefaultsAndThePapersConfigurationDecodePlainly) {
+  for (const bool paper : {false, true}) {
+    TrainerOptions options = QuickOptions(400);
+    if (paper) {
+      options.network.node_conditioning = false;
+      options.network.node_output_dim = 0;
+      options.schedule = LearningRateSchedule::kHalving;
+    }
+    const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
+    const NetworkEvaluation training = EvaluateNetwork(result.network, Map().scene, Map().tree,
+                                                       TrainingObservations(Map().scene, options));
+    std::cout << fmt::format("tiny city, {}: plain decoding, training leaf accuracy {:.4f}\n",
+                             paper ? "the paper's configuration" : "defaults",
+                             training.leaf_accuracy);
+    EXPECT_GE(training.leaf_accuracy, 0.99) << (paper ? "paper" : "defaults");
+  }
+}
+
+TEST_F(TinyCityTrainerTest, VisibilitySoftmaxRangesOverTheImagesChildrenOnly) {
+  // One step each, same weights and batch: the masked softmax has fewer classes, so its first loss
+  // is lower; with the mask broken (all children, or the true child masked) it would not be.
+  TrainerOptions options = QuickOptions(1);
+  options.log_every_iterations = 1;
+  options.evaluations = 0;
+  options.visibility_softmax = false;
+  const TrainingResult full = TrainNetwork(Map().scene, Map().tree, options);
+  options.visibility_softmax = true;
+  const TrainingResult masked = TrainNetwork(Map().scene, Map().tree, options);
+  ASSERT_EQ(full.log.size(), 1u);
+  ASSERT_EQ(masked.log.size(), 1u);
+  EXPECT_TRUE(std::isfinite(masked.log[0].loss));
+  EXPECT_LT(masked.log[0].loss, full.log[0].loss - 0.5);
+  // A sample without an image (image dropout) is not masked: the loss stays finite.
+  options.image_dropout = 1;
+  const TrainingResult no_image = TrainNetwork(Map().scene, Map().tree, options);
+  EXPECT_NEAR(no_image.log[0].loss, full.log[0].loss, 0.5);
+}
+
+TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {
+  // A rate far too high makes the held-out accuracy wander: the returned network is the best
+  // checked one, and it scores what that check scored.
+  TrainerOptions options = QuickOptions(60);
+  options.learning_rate = 0.3;
+  options.schedule = LearningRateSchedule::kHalving;
+  options.halving_fractions = {};
+  options.evaluations = 6;
+  options.evaluation_observations = 1 << 20;  // every held-out observation
+  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
+  ASSERT_EQ(result.held_out_checks.size(), 6u);
+  double best = 0;
+  int64_t best_iteration = 0;
+  for (const HeldOutCheck& check : result.held_out_checks) {
+    if (check.point_accuracy > best) {
+      best = check.point_accuracy;
+      best_iteration = check.iteration;
+    }
+  }
+  EXPECT_EQ(result.best_held_out_accuracy, best);
+  EXPECT_EQ(result.best_iteration, best_iteration);
+  const NetworkEvaluation evaluation = EvaluateNetwork(
+      result.network, Map().scene, Map().tree,
+      HeldOutObservations(Map().scene, options.holdout_fraction, 0), &Map().visibility);
+  EXPECT_DOUBLE_EQ(evaluation.leaf_accuracy, best);
+  // Without keep_best the last network comes back.
+  options.keep_best = false;
+  const TrainingResult last = TrainNetwork(Map().scene, Map().tree, options);
+  const NetworkEvaluation last_evaluation = EvaluateNetwork(
+      last.network, Map().scene, Map().tree,
+      HeldOutObservations(Map().scene, options.holdout_fraction, 0), &Map().visibility);
+  EXPECT_DOUBLE_EQ(last_evaluation.leaf_accuracy, last.held_out_checks.back().point_accuracy);
+}
+
+TEST_F(TinyCityTrainerTest, EpochBudgetCountsPassesOverTheTrainingObservations) {
+  TrainerOptions options = QuickOptions(0);
+  options.epochs = 2;
+  options.evaluations = 0;
+  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
+  const int64_t expected =
+      (2 * static_cast<int64_t>(result.num_training_observations) + options.batch_size - 1) /
+      options.batch_size;
+  EXPECT_EQ(result.iterations, expected);
 }
 
 TEST_F(TinyCityTrainerTest, SameSeedGivesIdenticalWeights) {
@@ -162,7 +271,10 @@ TEST_F(TinyCityTrainerTest, SameSeedGivesIdenticalWeights) {
 
 TEST_F(TinyCityTrainerTest, ResumedTrainingContinuesExactly) {
   TrainerOptions options = QuickOptions(40);
-  options.halving_fractions = {};  // the schedule follows the budget, which differs below
+  // The schedule and the held-out checks follow the budget, which differs below.
+  options.schedule = LearningRateSchedule::kHalving;
+  options.halving_fractions = {};
+  options.evaluations = 0;
   options.image_dropout = 0.1;
   const TrainingResult uninterrupted = TrainNetwork(Map().scene, Map().tree, options);
 

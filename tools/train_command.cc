@@ -23,6 +23,13 @@ struct TrainArguments {
   bool no_augment = false;
   bool eval = false;
   bool eval_only = false;
+  bool paper = false;
+  bool no_node_conditioning = false;
+  bool visibility_softmax = false;
+  bool dense_node_updates = false;
+  bool no_keep_best = false;
+  std::string schedule;
+  bool node_output_dim_given = false;
   TrainerOptions options;
 };
 
@@ -71,6 +78,27 @@ int RunTrain(TrainArguments& arguments) {
                            map->scene().NumObservations(), map->scene().NumPoints(),
                            FormatDuration(timer.ElapsedSeconds()));
   SetComputeThreads(options.num_threads);
+  if (arguments.paper) {
+    // The paper's network and schedule; explicit width flags still apply.
+    const NetworkOptions paper = NetworkOptions::PaperFaithful();
+    options.network.node_conditioning = paper.node_conditioning;
+    options.network.node_output_dim = paper.node_output_dim;
+    arguments.visibility_softmax = false;
+    options.schedule = LearningRateSchedule::kHalving;
+  } else if (!arguments.node_output_dim_given) {
+    options.network.node_output_dim =
+        DefaultNetworkOptions(map->scene().NumPoints()).node_output_dim;
+  }
+  if (arguments.no_node_conditioning) options.network.node_conditioning = false;
+  if (arguments.visibility_softmax) options.visibility_softmax = true;
+  if (arguments.dense_node_updates) options.sparse_node_updates = false;
+  if (arguments.no_keep_best) options.keep_best = false;
+  if (arguments.schedule == "halving") options.schedule = LearningRateSchedule::kHalving;
+  if (arguments.schedule == "one-cycle") options.schedule = LearningRateSchedule::kOneCycle;
+  if (options.max_iterations == 0 && options.max_minutes == 0 && options.epochs == 0) {
+    std::cerr << fmt::format("no budget given: {:.1f} epochs of the map's observations\n",
+                             DefaultEpochs(map->scene().NumObservations()));
+  }
 
   if (arguments.eval_only) {
     if (map->network() == nullptr) {
@@ -97,6 +125,15 @@ int RunTrain(TrainArguments& arguments) {
     std::cout << fmt::format(" {:.2f}", 100 * accuracy);
   }
   std::cout << " %\n";
+  if (result.best_held_out_accuracy >= 0) {
+    std::cout << fmt::format(
+        "held-out point accuracy (masked, {} checks) {:.2f} % at iteration {}{}; {}\n",
+        result.held_out_checks.size(), 100 * result.best_held_out_accuracy, result.best_iteration,
+        result.best_iteration < result.iterations ? " (best kept: later checks were worse)" : "",
+        result.converged ? "converged (< 5 % gained over the last quarter of the budget)"
+                         : "not converged: still improving, a larger budget would help "
+                           "(--epochs, --resume)");
+  }
   std::vector<std::pair<std::string, NetworkEvaluation>> evaluations;
   if (arguments.eval && result.num_held_out_observations > 0) {
     evaluations =
@@ -123,6 +160,38 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
           ->capture_default_str();
   command->add_option("--minutes", options.max_minutes, "Time budget in minutes (0: none)")
       ->capture_default_str();
+  command
+      ->add_option("--epochs", options.epochs,
+                   "Budget in passes over the training observations (no budget flag at all: "
+                   "chosen from the map's size)")
+      ->capture_default_str();
+  command->add_option("--schedule", arguments->schedule, "one-cycle (default) or halving")
+      ->check(CLI::IsMember({"one-cycle", "halving"}));
+  command
+      ->add_option("--warmup", options.warmup_fraction,
+                   "One-cycle: fraction of the budget warming up")
+      ->capture_default_str();
+  command
+      ->add_option("--node-output-dim", options.network.node_output_dim,
+                   "Width r of the per-node output rows (0: the paper's shared output layer; "
+                   "default from the map's size)")
+      ->each([arguments](const std::string&) { arguments->node_output_dim_given = true; });
+  command->add_flag("--no-node-conditioning", arguments->no_node_conditioning,
+                    "Condition on summed label embeddings (the paper) instead of node rows");
+  command->add_flag("--visibility-softmax", arguments->visibility_softmax,
+                    "Train each level's softmax over the children the image sees only (then "
+                    "localize with --masked-decoding)");
+  command->add_flag("--dense-node-updates", arguments->dense_node_updates,
+                    "Dense Adam over the node output rows instead of lazy row updates");
+  command->add_flag("--paper", arguments->paper,
+                    "The paper's configuration: label-sum conditioning, shared output layers, "
+                    "full softmax, halving schedule");
+  command
+      ->add_option("--evaluations", options.evaluations,
+                   "Held-out checks during training (early stopping; 0: none)")
+      ->capture_default_str();
+  command->add_flag("--no-keep-best", arguments->no_keep_best,
+                    "Return the last network rather than the best held-out one");
   command->add_option("--device", arguments->device, "cpu or cuda")
       ->check(CLI::IsMember({"cpu", "cuda"}))
       ->capture_default_str();
@@ -135,7 +204,7 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
       ->capture_default_str();
   command->add_option("--batch-size", options.batch_size, "Observations per batch")
       ->capture_default_str();
-  command->add_option("--lr", options.learning_rate, "Adam learning rate (halved at 50/75/90 %)")
+  command->add_option("--lr", options.learning_rate, "Adam learning rate (the one-cycle's peak)")
       ->capture_default_str();
   command
       ->add_option("--channels", options.network.channels,

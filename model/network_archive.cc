@@ -1,0 +1,160 @@
+// The network's archive: shape, options and weights in a libtorch archive, with a format magic
+// and version so that another file or an older format is named, not misread.
+#include <istream>
+#include <ostream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "map/map_blobs.h"
+#include "model/network.h"
+#include "model/network_module.h"
+#include "util/check.h"
+
+namespace hscloc {
+namespace {
+
+constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
+// Version 2 added the trunk's hidden width; version 1 archives have it equal to the channels.
+// Version 3 added node conditioning, node output rows and the tree's node counts; older archives
+// are the paper's configuration.
+constexpr int64_t kFormatVersion = 3;
+
+void WriteInt64Vector(torch::serialize::OutputArchive& archive, const std::string& key,
+                      const std::vector<int64_t>& values) {
+  archive.write(key, torch::tensor(values, torch::kInt64));
+}
+
+std::vector<int64_t> ReadInt64Vector(torch::serialize::InputArchive& archive,
+                                     const std::string& key, size_t expected_size,
+                                     const std::string& source) {
+  torch::Tensor tensor;
+  if (!archive.try_read(key, tensor) || tensor.scalar_type() != torch::kInt64 ||
+      tensor.dim() != 1 || static_cast<size_t>(tensor.numel()) != expected_size) {
+    ThrowInvalidArgument("{}: not an hscloc network archive ('{}' missing or malformed)", source,
+                         key);
+  }
+  tensor = tensor.contiguous();
+  return std::vector<int64_t>(tensor.data_ptr<int64_t>(),
+                              tensor.data_ptr<int64_t>() + tensor.numel());
+}
+
+}  // namespace
+
+void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputArchive& archive) {
+  const NetworkShape& shape = network.shape();
+  const NetworkOptions& options = network.options();
+  WriteInt64Vector(archive, "format", {kFormatMagic, kFormatVersion});
+  WriteInt64Vector(archive, "shape",
+                   {shape.descriptor_dim, shape.levels, shape.branching, shape.num_images});
+  WriteInt64Vector(
+      archive, "options",
+      {options.channels, options.embedding_dim, options.conditioned_layers, options.trunk_channels,
+       options.node_conditioning ? 1 : 0, options.node_output_dim});
+  WriteInt64Vector(archive, "nodes_per_depth", shape.nodes_per_depth);
+  torch::serialize::OutputArchive weights;
+  network.impl_->module->save(weights);
+  archive.write("weights", weights);
+}
+
+Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
+                                   const std::string& source, ComputeDevice device) {
+  const std::vector<int64_t> format = ReadInt64Vector(archive, "format", 2, source);
+  if (format[0] != kFormatMagic || format[1] < 1 || format[1] > kFormatVersion) {
+    ThrowInvalidArgument("{}: network archive format {} of version {}, expected version 1 to {}",
+                         source, format[0], format[1], kFormatVersion);
+  }
+  const std::vector<int64_t> s = ReadInt64Vector(archive, "shape", 4, source);
+  const size_t option_count = format[1] == 1 ? 3 : format[1] == 2 ? 4 : 6;
+  const std::vector<int64_t> o = ReadInt64Vector(archive, "options", option_count, source);
+  NetworkShape shape{static_cast<int>(s[0]),
+                     static_cast<int>(s[1]),
+                     static_cast<int>(s[2]),
+                     static_cast<int>(s[3]),
+                     {}};
+  NetworkOptions options = NetworkOptions::PaperFaithful();
+  options.channels = static_cast<int>(o[0]);
+  options.embedding_dim = static_cast<int>(o[1]);
+  options.conditioned_layers = static_cast<int>(o[2]);
+  options.trunk_channels = format[1] == 1 ? options.channels : static_cast<int>(o[3]);
+  if (format[1] >= 3) {
+    options.node_conditioning = o[4] != 0;
+    options.node_output_dim = static_cast<int>(o[5]);
+    torch::Tensor nodes;
+    if (!archive.try_read("nodes_per_depth", nodes) || nodes.scalar_type() != torch::kInt64 ||
+        nodes.dim() != 1) {
+      ThrowInvalidArgument("{}: not an hscloc network archive ('nodes_per_depth' malformed)",
+                           source);
+    }
+    nodes = nodes.contiguous();
+    shape.nodes_per_depth.assign(nodes.data_ptr<int64_t>(),
+                                 nodes.data_ptr<int64_t>() + nodes.numel());
+  }
+  try {
+    shape.Check();
+    options.Check();
+    if (options.NeedsNodeCounts() && shape.nodes_per_depth.empty()) {
+      ThrowInvalidArgument("NetworkShape.nodes_per_depth missing for per-node tables");
+    }
+  } catch (const std::invalid_argument& error) {
+    ThrowInvalidArgument("{}: {}", source, error.what());
+  }
+  auto impl = std::make_unique<Network::Impl>();
+  impl->shape = shape;
+  impl->options = options;
+  impl->module = HscNet(shape, options);
+  torch::serialize::InputArchive weights;
+  if (!archive.try_read("weights", weights)) {
+    ThrowInvalidArgument("{}: network archive without weights", source);
+  }
+  try {
+    impl->module->load(weights);
+  } catch (const c10::Error& error) {
+    ThrowInvalidArgument("{}: network weights do not match shape and options: {}", source,
+                         error.what_without_backtrace());
+  }
+  Network network(std::move(impl));
+  network.SetDevice(device);
+  return network;
+}
+
+void Network::Save(std::ostream& stream) const {
+  torch::serialize::OutputArchive archive;
+  NetworkInternals::SaveTo(*this, archive);
+  archive.save_to(stream);
+}
+
+Network Network::Load(std::istream& stream, const std::string& source, ComputeDevice device) {
+  torch::serialize::InputArchive archive;
+  try {
+    archive.load_from(stream, torch::Device(torch::kCPU));
+  } catch (const c10::Error& error) {
+    ThrowInvalidArgument("{}: not a network archive: {}", source, error.what_without_backtrace());
+  }
+  return NetworkInternals::LoadFrom(archive, source, device);
+}
+
+Network Network::FromBundle(const MapBundle& bundle, ComputeDevice device) {
+  if (!bundle.HasBlob(map_blobs::kNetwork)) {
+    ThrowInvalidArgument("map bundle {} holds no trained network (run `hscloc train`)",
+                         bundle.dir().string());
+  }
+  std::istringstream stream(bundle.Blob(map_blobs::kNetwork));
+  return Load(stream, (bundle.dir() / map_blobs::kNetwork).string(), device);
+}
+
+bool Network::HasSameWeights(const Network& other) const {
+  if (!(shape() == other.shape()) || !(options() == other.options())) return false;
+  const auto mine = impl_->module->named_parameters();
+  const auto theirs = other.impl_->module->named_parameters();
+  if (mine.size() != theirs.size()) return false;
+  for (const auto& item : mine) {
+    const torch::Tensor* other_parameter = theirs.find(item.key());
+    if (other_parameter == nullptr || !torch::equal(item.value().cpu(), other_parameter->cpu())) {
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace hscloc
