@@ -393,6 +393,8 @@ std::map<Matcher, RealSetCounts> LocalizeRealSet(
   BuildMap({data / "map", data / "database.db", std::nullopt}, build_options, temp / "map");
   auto map = LocalizationMap::Load(temp / "map", {.load_observations = true});
   TrainerOptions train_options;
+  // The widths `hscloc train` chooses for this map.
+  train_options.network = DefaultNetworkOptions(map->scene().NumPoints());
   train_options.max_iterations = iterations;
   train_options.holdout_fraction = 0;
   train_options.show_progress = false;

@@ -440,9 +440,16 @@ double DefaultEpochs(size_t num_training_observations) {
 }
 
 NetworkOptions DefaultNetworkOptions(size_t num_points) {
+  NetworkOptions options;
+  // A map of a few thousand points has few parents per level, which one shared output layer
+  // serves; per-node rows, each learned from the few views of its points, generalized worse on
+  // Lund (532 points: 3 of 5 queries within (0.25 m, 2 deg) against 4 of 5, docs/decisions.md).
+  if (num_points < kMinPointsForNodeOutputRows) {
+    options.node_output_dim = 0;
+    return options;
+  }
   // The node output rows are most of the network's bytes: at most about 6 M numbers (24 MB), so
   // that the HSC bundle stays under a fifth of the nearest-neighbour map (docs/decisions.md).
-  NetworkOptions options;
   int rows = 64;
   while (rows > 16 && static_cast<double>(num_points) * (rows + 1) > 6e6) rows /= 2;
   options.node_output_dim = rows;

@@ -139,8 +139,10 @@ struct TrainingResult {
 // The epochs an automatic budget trains for a map of this many training observations: fewer
 // passes for larger maps, whose batches hold more distinct points (docs/decisions.md).
 double DefaultEpochs(size_t num_training_observations);
-// Widths for a map of this many points: the node output rows narrow on large maps so that the
-// bundle stays small.
+// Maps with fewer points keep the paper's shared output layer (node_output_dim = 0).
+inline constexpr size_t kMinPointsForNodeOutputRows = 10000;
+// Widths for a map of this many points: per-node output rows from kMinPointsForNodeOutputRows
+// points on, narrowing on large maps so that the bundle stays small.
 NetworkOptions DefaultNetworkOptions(size_t num_points);
 
 // Whether observation `index` belongs to the held-out fraction (a hash of index and seed).

@@ -127,6 +127,10 @@ TEST(TrainerOptionsTest, ChecksNameTheField) {
   EXPECT_GT(DefaultEpochs(20000), DefaultEpochs(2000000));
   EXPECT_GE(DefaultNetworkOptions(100000).node_output_dim,
             DefaultNetworkOptions(2000000).node_output_dim);
+  // Small maps keep the shared output layer; from the threshold on, every node has its row.
+  EXPECT_EQ(DefaultNetworkOptions(kMinPointsForNodeOutputRows - 1).node_output_dim, 0);
+  EXPECT_GT(DefaultNetworkOptions(kMinPointsForNodeOutputRows).node_output_dim, 0);
+  DefaultNetworkOptions(532).Check();
 }
 
 TEST(TrainerTest, HeldOutSplitIsDeterministicAndNearTheFraction) {
