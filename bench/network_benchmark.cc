@@ -75,9 +75,7 @@ struct BenchmarkMap {
     tree = LabelTree::Build(scene.points, tree_options);
   }
 
-  NetworkShape Shape() const {
-    return NetworkShape::ForTree(kDescriptorDim, tree, kNumImages);
-  }
+  NetworkShape Shape() const { return NetworkShape::ForTree(kDescriptorDim, tree, kNumImages); }
 };
 
 const BenchmarkMap& Map() {

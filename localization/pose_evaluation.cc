@@ -106,7 +106,8 @@ std::string FormatAccuracyTable(const std::vector<ConditionAccuracy>& accuracies
   return table;
 }
 
-ConditionQueries ConditionFromQueryList(const std::string& name, const std::filesystem::path& list) {
+ConditionQueries ConditionFromQueryList(const std::string& name,
+                                        const std::filesystem::path& list) {
   ConditionQueries condition{name, {}};
   for (const QueryWithIntrinsics& query : ReadQueryList(list)) {
     condition.basenames.insert(ImageBasename(query.name));
@@ -140,9 +141,8 @@ std::vector<ConditionAccuracy> SummarizeAccuracyByCondition(
       if (condition.basenames.count(ImageBasename(error.name))) subset.push_back(error);
     }
     if (subset.size() != condition.basenames.size()) {
-      ThrowInvalidArgument("condition '{}': {} of its {} queries lack ground truth",
-                           condition.name, condition.basenames.size() - subset.size(),
-                           condition.basenames.size());
+      ThrowInvalidArgument("condition '{}': {} of its {} queries lack ground truth", condition.name,
+                           condition.basenames.size() - subset.size(), condition.basenames.size());
     }
     accuracies.push_back(SummarizeAccuracy(condition.name, std::move(subset), thresholds));
   }
