@@ -182,9 +182,10 @@ std::vector<CandidateMatches> Localizer::Match(const LocalizationQuery& query,
   } else {
     images.push_back(network_->NoImageIndex());
   }
-  const PointPredictions predictions =
-      network_->Predict(query.descriptors, images, map_->label_tree(),
-                        options.visibility_masked_decoding ? &map_->visibility() : nullptr);
+  // A network trained with the visibility softmax ranks only the children an image sees.
+  const bool masked = options.visibility_masked_decoding || network_->options().masked_decoding;
+  const PointPredictions predictions = network_->Predict(
+      query.descriptors, images, map_->label_tree(), masked ? &map_->visibility() : nullptr);
   for (size_t k = begin; k < end; ++k) {
     const int64_t row = options.use_image_id ? static_cast<int64_t>(k - begin) : 0;
     for (int64_t keypoint = 0; keypoint < query.descriptors.rows(); ++keypoint) {

@@ -57,7 +57,8 @@ struct LocalizerOptions {
   // Condition the network on the candidate's image id; off, it sees the "no image" id (an
   // ablation that needs a network trained with image dropout to be meaningful).
   bool use_image_id = true;
-  // Restrict the network's choices at each level to subtrees the candidate image observes.
+  // Restrict the network's choices at each level to subtrees the candidate image observes. A
+  // network trained for it (NetworkOptions::masked_decoding) is always decoded so.
   bool visibility_masked_decoding = false;
   CandidateSearch candidate_search = CandidateSearch::kAll;
   // Inliers with which kUntilAccepted accepts a candidate and stops.

@@ -30,6 +30,11 @@ std::atomic<int> compute_threads{0};
 
 torch::Tensor Elu(const torch::Tensor& x) { return torch::elu(x); }
 
+// Rows of unit-variance logits for unit-variance projections; biases start at 0.
+void InitializeOutputRows(torch::Tensor& rows, int64_t dim) {
+  rows.narrow(1, 0, dim).normal_(0, 1 / std::sqrt(static_cast<double>(dim)));
+}
+
 }  // namespace
 
 int ComputeThreads() { return compute_threads.load(); }
@@ -141,7 +146,8 @@ NetworkOptions NetworkOptions::PaperFaithful() {
 bool NetworkOptions::operator==(const NetworkOptions& other) const {
   return channels == other.channels && trunk_channels == other.trunk_channels &&
          embedding_dim == other.embedding_dim && conditioned_layers == other.conditioned_layers &&
-         node_conditioning == other.node_conditioning && node_output_dim == other.node_output_dim;
+         node_conditioning == other.node_conditioning && node_output_dim == other.node_output_dim &&
+         pooled_point_rows == other.pooled_point_rows && masked_decoding == other.masked_decoding;
 }
 
 torch::Tensor ChildNodesOf(const LabelTree& tree, const int64_t* parent_nodes, int64_t rows) {
@@ -195,12 +201,15 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
         register_module("conditioned" + suffix, torch::nn::Linear(channels, channels)));
   }
   node_output_dim_ = options.node_output_dim;
+  pooled_ = options.pooled_point_rows;
   if (node_output_dim_ > 0) {
     const int64_t children = shape.nodes_per_depth.at(level + 1);
     node_rows_first_ = shape.FirstNodeOfDepth(level + 1);
     projection_ = register_module("projection", torch::nn::Linear(channels, node_output_dim_));
-    node_rows_ = register_parameter(
-        "node_rows", torch::zeros({has_choice ? children : 1, node_output_dim_ + 1}));
+    if (!pooled_) {
+      node_rows_ = register_parameter(
+          "node_rows", torch::zeros({has_choice ? children : 1, node_output_dim_ + 1}));
+    }
   } else {
     output_ = register_module("output", torch::nn::Linear(channels, shape.branching));
   }
@@ -229,8 +238,7 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
     // Rows of unit-variance logits for unit-variance projections; biases start at 0.
     torch::nn::init::kaiming_normal_(projection_->weight, 0, torch::kFanIn, torch::kLinear);
     projection_->bias.zero_();
-    node_rows_.narrow(1, 0, node_output_dim_)
-        .normal_(0, 1 / std::sqrt(static_cast<double>(node_output_dim_)));
+    if (!pooled_) InitializeOutputRows(node_rows_, node_output_dim_);
   } else {
     torch::nn::init::kaiming_normal_(output_->weight, 0, torch::kFanIn, torch::kLinear);
     output_->bias.zero_();
@@ -265,17 +273,20 @@ torch::Tensor LevelImpl::ConditionedLinear(int layer, const torch::Tensor& featu
   return conditioned_[layer](features);
 }
 
+torch::Tensor LevelImpl::Project(const torch::Tensor& features) {
+  const torch::Tensor projected = projection_(features);
+  return torch::cat({projected, torch::ones({projected.size(0), 1}, projected.options())}, 1);
+}
+
 torch::Tensor LevelImpl::Logits(const torch::Tensor& features, const torch::Tensor& child_nodes) {
   if (node_output_dim_ == 0) return output_(features);
+  if (pooled_) throw std::logic_error("LevelImpl::Logits on pooled point rows");
   const torch::Tensor exists = child_nodes.ge(0);
   const torch::Tensor rows = (child_nodes - node_rows_first_).clamp_min(0);
   // [R, branching, r + 1] rows against [R, r + 1, 1] projections with a constant 1 for the bias.
   const torch::Tensor gathered = torch::nn::functional::embedding(
       rows, node_rows_, torch::nn::functional::EmbeddingFuncOptions().sparse(sparse_node_rows_));
-  const torch::Tensor projected = projection_(features);
-  const torch::Tensor augmented =
-      torch::cat({projected, torch::ones({projected.size(0), 1}, projected.options())}, 1);
-  const torch::Tensor logits = torch::bmm(gathered, augmented.unsqueeze(2)).squeeze(2);
+  const torch::Tensor logits = torch::bmm(gathered, Project(features).unsqueeze(2)).squeeze(2);
   // A row without children (a path that left the tree) keeps finite logits.
   const torch::Tensor absent = exists.logical_not().logical_and(exists.any(1, true));
   return logits.masked_fill(absent, -std::numeric_limits<float>::infinity());
@@ -317,7 +328,7 @@ LevelWeights LevelImpl::CpuWeights() const {
     weights.node_output_dim = node_output_dim_;
     weights.projection_weight = data(projection_->weight);
     weights.projection_bias = data(projection_->bias);
-    weights.node_rows = data(node_rows_);
+    if (!pooled_) weights.node_rows = data(node_rows_);
     weights.node_rows_first = node_rows_first_;
   } else {
     weights.output_weight = data(output_->weight);
@@ -326,24 +337,38 @@ LevelWeights LevelImpl::CpuWeights() const {
   return weights;
 }
 
-torch::Tensor LevelImpl::forward(const torch::Tensor& descriptors,
-                                 const torch::Tensor& image_indices,
-                                 const torch::Tensor& prefix_labels,
-                                 const torch::Tensor& parent_nodes,
-                                 const torch::Tensor& child_nodes) {
+torch::Tensor LevelImpl::Features(const torch::Tensor& descriptors,
+                                  const torch::Tensor& image_indices,
+                                  const torch::Tensor& prefix_labels,
+                                  const torch::Tensor& parent_nodes) {
   torch::Tensor features = Trunk(descriptors);
   const LevelModulation modulation = Generate(image_indices, prefix_labels, parent_nodes);
   for (size_t i = 0; i < conditioned_.size(); ++i) {
     features =
         Elu(torch::addcmul(modulation.betas[i], modulation.gammas[i], conditioned_[i](features)));
   }
-  return Logits(features, child_nodes);
+  return features;
+}
+
+torch::Tensor LevelImpl::forward(const torch::Tensor& descriptors,
+                                 const torch::Tensor& image_indices,
+                                 const torch::Tensor& prefix_labels,
+                                 const torch::Tensor& parent_nodes,
+                                 const torch::Tensor& child_nodes) {
+  return Logits(Features(descriptors, image_indices, prefix_labels, parent_nodes), child_nodes);
 }
 
 HscNetImpl::HscNetImpl(const NetworkShape& shape, const NetworkOptions& options) {
   for (int level = 0; level < shape.levels; ++level) {
     levels.push_back(
         register_module("level" + std::to_string(level), Level(level, shape, options)));
+  }
+  if (options.pooled_point_rows) {
+    point_rows = register_parameter(
+        "point_rows", torch::zeros({shape.nodes_per_depth.at(shape.levels),
+                                    static_cast<int64_t>(options.node_output_dim) + 1}));
+    torch::NoGradGuard no_grad;
+    InitializeOutputRows(point_rows, options.node_output_dim);
   }
 }
 

@@ -10,8 +10,8 @@
 //   conditioned  h_i = ELU(gamma_i * (W_i h_{i-1} + b_i) + beta_i)  h_0 = t
 //   output       logits = Linear(h_last) over the children of the parent cluster
 //
-// Two departures measured at city scale (docs/decisions.md, "Training at city scale"), each an
-// option, both off in NetworkOptions::PaperFaithful():
+// Three departures measured at city scale (docs/decisions.md, "Training at city scale"), each an
+// option, all off in NetworkOptions::PaperFaithful():
 //   node conditioning   the generator reads one embedding row per tree node, that of the parent
 //                       (the whole label prefix), instead of sum_{k<j} E_k[label_k];
 //   node output rows    logits_c = <u_child(c), [P h_last, 1]>: a projection P (C -> r) shared by
@@ -19,6 +19,8 @@
 //                       parent has a classifier of its own over its children (near the leaves a
 //                       learned nearest-class-mean matcher). Children a parent does not have get
 //                       probability 0.
+//   pooled point rows   logits_c = logsumexp_{p in subtree(c), seen} <u_p, [P h_last, 1]>: one
+//                       row per point shared by all levels, pooled over each child's points.
 // The paper's 1x1 convolutions over one-hot labels and an encoded image id are embedding lookups;
 // the paper's per-position linear modulation is gamma * (W h + b) + beta.
 //
@@ -96,6 +98,16 @@ struct NetworkOptions {
   // r > 0: per-node output rows of r weights and a bias after a shared projection C -> r;
   // 0: the paper's Linear(C, branching) shared by every parent of the level.
   int node_output_dim = 64;
+  // Pooled point rows (needs node_output_dim > 0): one table of rows, one per point (leaf), shared
+  // by every level; a level scores a child by the log-sum-exp of the scores of the points in its
+  // subtree that the conditioning image observes (all of them without an image or a mask). Every
+  // level is then a classifier with many prototypes per class (Qian et al., "SoftTriple Loss",
+  // ICCV 2019), so a coarse cluster of a thousand unrelated descriptors needs no single row that
+  // fits them all; off: each node has its own row (docs/decisions.md, "Training at city scale").
+  bool pooled_point_rows = false;
+  // Trained with the visibility softmax: decode with the visibility mask (the Localizer does so on
+  // its own for such a network).
+  bool masked_decoding = false;
 
   // The configuration of Li et al. (label-sum conditioning, a shared output layer per level).
   static NetworkOptions PaperFaithful();

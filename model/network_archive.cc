@@ -17,8 +17,8 @@ namespace {
 constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
 // Version 2 added the trunk's hidden width; version 1 archives have it equal to the channels.
 // Version 3 added node conditioning, node output rows and the tree's node counts; older archives
-// are the paper's configuration.
-constexpr int64_t kFormatVersion = 3;
+// are the paper's configuration. Version 4 added pooled point rows and masked decoding.
+constexpr int64_t kFormatVersion = 4;
 
 void WriteInt64Vector(torch::serialize::OutputArchive& archive, const std::string& key,
                       const std::vector<int64_t>& values) {
@@ -50,7 +50,8 @@ void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputAr
   WriteInt64Vector(
       archive, "options",
       {options.channels, options.embedding_dim, options.conditioned_layers, options.trunk_channels,
-       options.node_conditioning ? 1 : 0, options.node_output_dim});
+       options.node_conditioning ? 1 : 0, options.node_output_dim,
+       options.pooled_point_rows ? 1 : 0, options.masked_decoding ? 1 : 0});
   WriteInt64Vector(archive, "nodes_per_depth", shape.nodes_per_depth);
   torch::serialize::OutputArchive weights;
   network.impl_->module->save(weights);
@@ -65,7 +66,7 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
                          source, format[0], format[1], kFormatVersion);
   }
   const std::vector<int64_t> s = ReadInt64Vector(archive, "shape", 4, source);
-  const size_t option_count = format[1] == 1 ? 3 : format[1] == 2 ? 4 : 6;
+  const size_t option_count = format[1] == 1 ? 3 : format[1] == 2 ? 4 : format[1] == 3 ? 6 : 8;
   const std::vector<int64_t> o = ReadInt64Vector(archive, "options", option_count, source);
   NetworkShape shape{static_cast<int>(s[0]),
                      static_cast<int>(s[1]),
@@ -80,6 +81,10 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
   if (format[1] >= 3) {
     options.node_conditioning = o[4] != 0;
     options.node_output_dim = static_cast<int>(o[5]);
+    if (format[1] >= 4) {
+      options.pooled_point_rows = o[6] != 0;
+      options.masked_decoding = o[7] != 0;
+    }
     torch::Tensor nodes;
     if (!archive.try_read("nodes_per_depth", nodes) || nodes.scalar_type() != torch::kInt64 ||
         nodes.dim() != 1) {

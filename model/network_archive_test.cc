@@ -78,14 +78,14 @@ TEST(NetworkArchiveTest, VersionTwoArchivesLoadAsThePapersNetwork) {
             network.Predict(descriptors, {1, 2}, map.tree, &map.visibility).labels);
 }
 
-TEST(NetworkArchiveTest, VersionThreeKeepsNodeTablesAndCounts) {
+TEST(NetworkArchiveTest, CurrentVersionKeepsOutputTablesDecodingAndCounts) {
   const RandomMap map = MakeRandomMap(12);
-  for (const NetworkOptions& options :
-       testing_support::HeadVariants(testing_support::SmallOptions())) {
+  for (NetworkOptions options : testing_support::HeadVariants(testing_support::SmallOptions())) {
+    options.masked_decoding = options.node_output_dim > 0;
     const Network network(map.shape, options, 5);
     std::stringstream stream;
     network.Save(stream);
-    const Network loaded = Network::Load(stream, "v3.pt");
+    const Network loaded = Network::Load(stream, "v4.pt");
     EXPECT_EQ(loaded.options(), options);
     EXPECT_EQ(loaded.shape().nodes_per_depth, map.shape.nodes_per_depth);
     EXPECT_TRUE(loaded.HasSameWeights(network));

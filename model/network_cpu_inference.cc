@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -12,6 +13,7 @@
 #include "model/dense_kernels.h"
 #include "model/network_decoding.h"
 #include "model/network_module.h"
+#include "model/point_candidates.h"
 #include "util/parallel.h"
 #include "util/timer.h"
 
@@ -36,6 +38,9 @@ void ForEachRowBlock(int64_t rows, const std::function<void(int64_t begin, int64
 // size would each be zeroed and page-faulted in.
 struct BlockScratch {
   std::vector<float> hidden, embedding, generator, features, linear, logits, projected;
+  // Pooled point rows: a chunk of candidate rows and their scores against a run's rows.
+  std::vector<float> gathered, scores;
+  std::vector<uint8_t> groups;
   std::vector<std::vector<float>> gammas, betas;
   std::vector<int32_t> run_of_row;
   std::vector<int64_t> descriptor_of_row;
@@ -95,6 +100,10 @@ class CpuForwardPass {
     if (visibility_mask != nullptr) {
       masks_ = std::make_unique<NodeVisibilityMasks>(image_indices, tree, *visibility_mask);
     }
+    if (network.options().pooled_point_rows) {
+      candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices);
+      point_rows_ = NetworkInternals::Module(network)->point_rows.data_ptr<float>();
+    }
   }
 
   PointPredictions Run(const Network& network) {
@@ -103,7 +112,9 @@ class CpuForwardPass {
       const Timer level_timer;
       const int depth = level->level();
       if (tree_.LevelHasChoice(depth)) {
-        RunLevel(level->CpuWeights(), depth, level->NumConditionedLayers());
+        LevelWeights weights = level->CpuWeights();
+        weights.point_rows = point_rows_;
+        RunLevel(weights, depth, level->NumConditionedLayers());
       } else {
         SkipLevel(depth);
       }
@@ -135,7 +146,7 @@ class CpuForwardPass {
                       layers, node_output_dim_);
       GenerateModulation(weights, layers, begin, end, scratch);
       ModulateFeatures(weights, layers, begin, end, scratch);
-      ComputeLogits(weights, begin, end, scratch);
+      ComputeLogits(weights, depth, begin, end, scratch);
       ChooseLabels(depth, begin, end, scratch);
     });
   }
@@ -242,8 +253,9 @@ class CpuForwardPass {
     }
   }
 
-  // Logits over the children, from the level's shared output layer or the parent's node rows.
-  void ComputeLogits(const LevelWeights& weights, int64_t begin, int64_t end,
+  // Logits over the children, from the level's shared output layer, the parent's node rows or
+  // the pooled point rows.
+  void ComputeLogits(const LevelWeights& weights, int depth, int64_t begin, int64_t end,
                      BlockScratch& scratch) {
     const int64_t branching = shape_.branching;
     const int64_t block_rows = end - begin;
@@ -257,6 +269,10 @@ class CpuForwardPass {
     dense_kernels::Linear(scratch.features.data(), block_rows, channels_, weights.projection_weight,
                           weights.projection_bias, node_output_dim_, false,
                           scratch.projected.data());
+    if (weights.point_rows != nullptr) {
+      PooledLogits(weights.point_rows, depth, begin, end, scratch);
+      return;
+    }
     for (int64_t i = begin; i < end;) {
       int64_t run_end = i + 1;
       while (run_end < end && keyed_rows_[run_end].first == keyed_rows_[i].first) ++run_end;
@@ -270,6 +286,56 @@ class CpuForwardPass {
                                 run_end - i, node_output_dim_,
                                 weights.node_rows + first * row_width, count, branching, logits);
       if (count == 0) std::fill_n(logits, (run_end - i) * branching, 0.0f);
+      i = run_end;
+    }
+  }
+
+  // Each run of rows shares its image and parent, hence its candidate points: their rows are
+  // gathered a chunk at a time and scored against the run's projections, and each child keeps
+  // the best score of its points (PooledPointLogits, Pooling::kMax).
+  void PooledLogits(const float* point_rows, int depth, int64_t begin, int64_t end,
+                    BlockScratch& scratch) {
+    constexpr size_t kChunk = 512;
+    const int64_t branching = shape_.branching;
+    const int64_t row_width = node_output_dim_ + 1;
+    scratch.gathered.resize(kChunk * row_width);
+    scratch.scores.resize(kRowBlock * kChunk);
+    scratch.groups.resize(kChunk);
+    std::fill_n(scratch.logits.data(), (end - begin) * branching,
+                -std::numeric_limits<float>::infinity());
+    for (int64_t i = begin; i < end;) {
+      int64_t run_end = i + 1;
+      while (run_end < end && keyed_rows_[run_end].first == keyed_rows_[i].first) ++run_end;
+      const int64_t row = keyed_rows_[i].second;
+      const int64_t parent = parent_node_[row];
+      const CandidateSpan span =
+          parent < 0 ? CandidateSpan{}
+                     : candidates_->Under(candidates_->SlotOf(row / num_descriptors_),
+                                          static_cast<uint32_t>(parent));
+      const int64_t run_rows = run_end - i;
+      for (size_t first = 0; first < span.size; first += kChunk) {
+        const size_t count = std::min(kChunk, span.size - first);
+        for (size_t m = 0; m < count; ++m) {
+          const uint32_t rank = span[first + m];
+          std::copy_n(point_rows + rank * row_width, row_width,
+                      scratch.gathered.data() + m * row_width);
+          scratch.groups[m] = candidates_->LabelOfRank(rank, depth);
+        }
+        dense_kernels::NodeLogits(scratch.projected.data() + (i - begin) * node_output_dim_,
+                                  run_rows, node_output_dim_, scratch.gathered.data(),
+                                  static_cast<int64_t>(count), static_cast<int64_t>(count),
+                                  scratch.scores.data());
+        for (int64_t r = 0; r < run_rows; ++r) {
+          float* logits = scratch.logits.data() + (i - begin + r) * branching;
+          const float* scores = scratch.scores.data() + r * count;
+          for (size_t m = 0; m < count; ++m) {
+            logits[scratch.groups[m]] = std::max(logits[scratch.groups[m]], scores[m]);
+          }
+        }
+      }
+      // A row without candidates (its path left the tree) keeps finite logits.
+      if (span.size == 0)
+        std::fill_n(scratch.logits.data() + (i - begin) * branching, run_rows * branching, 0.0f);
       i = run_end;
     }
   }
@@ -302,6 +368,9 @@ class CpuForwardPass {
   DescriptorMatrix scaled_descriptors_;
   float current_scale_ = 1;
   std::unique_ptr<NodeVisibilityMasks> masks_;
+  // Pooled point rows: the candidates of the call's images, and the network's table.
+  std::unique_ptr<PointCandidates> candidates_;
+  const float* point_rows_ = nullptr;
   // The tree node of every row's label prefix (-1 once a path leaves the tree).
   std::vector<int64_t> parent_node_;
   // The first conditioned layer's W h + b of every descriptor, [N, C].

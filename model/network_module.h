@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "model/network.h"
+#include "model/point_candidates.h"
 
 namespace hscloc {
 
@@ -44,6 +45,9 @@ struct LevelWeights {
   const float* projection_bias = nullptr;
   const float* node_rows = nullptr;
   int64_t node_rows_first = 0;
+  // Pooled point rows (NetworkOptions::pooled_point_rows): the network's shared table
+  // [points, r + 1], row = leaf rank; node_rows is null then.
+  const float* point_rows = nullptr;
 };
 
 // One level of the network (see model/network.h for the equations).
@@ -67,13 +71,20 @@ class LevelImpl : public torch::nn::Module {
   // Throws std::logic_error unless every parameter is a contiguous fp32 CPU tensor.
   LevelWeights CpuWeights() const;
 
-  // Teacher-forced logits [R, branching] of R (descriptor, image, prefix) rows.
+  // The last conditioned layer's features [R, C] of R (descriptor, image, prefix) rows.
+  torch::Tensor Features(const torch::Tensor& descriptors, const torch::Tensor& image_indices,
+                         const torch::Tensor& prefix_labels, const torch::Tensor& parent_nodes);
+  // [R, r + 1]: the projection of the features with a constant 1 appended (the rows' bias).
+  torch::Tensor Project(const torch::Tensor& features);
+  // Teacher-forced logits [R, branching] of R (descriptor, image, prefix) rows (not for pooled
+  // point rows: PooledPointLogits).
   torch::Tensor forward(const torch::Tensor& descriptors, const torch::Tensor& image_indices,
                         const torch::Tensor& prefix_labels, const torch::Tensor& parent_nodes,
                         const torch::Tensor& child_nodes);
 
   int level() const { return level_; }
   bool HasNodeOutput() const { return node_output_dim_ > 0; }
+  bool IsPooled() const { return pooled_; }
   // Training gathers node rows with sparse gradients (only the rows a batch touches), for
   // row-wise lazy Adam (model/lazy_adam.h).
   void SetSparseNodeRows(bool sparse) { sparse_node_rows_ = sparse; }
@@ -103,6 +114,7 @@ class LevelImpl : public torch::nn::Module {
   torch::Tensor node_rows_;
   int64_t node_rows_first_ = 0;
   bool sparse_node_rows_ = false;
+  bool pooled_ = false;
 };
 TORCH_MODULE(Level);
 
@@ -115,8 +127,32 @@ class HscNetImpl : public torch::nn::Module {
   HscNetImpl(const NetworkShape& shape, const NetworkOptions& options);
 
   std::vector<Level> levels;
+  // Pooled point rows: [points, r + 1], one row per leaf rank (weights, then the bias); undefined
+  // otherwise.
+  torch::Tensor point_rows;
 };
 TORCH_MODULE(HscNet);
+
+// The candidate points of R rows at one level, flattened: point (leaf rank) i belongs to row
+// rows[i] and falls under child groups[i] of that row's parent. CPU int64 tensors [T].
+struct FlatCandidates {
+  torch::Tensor ranks, rows, groups;
+};
+// The candidates of rows [begin, end): row r pools over the points under parent_nodes[r] that
+// slot slots[r] observes (PointCandidates::Under); rows whose parent is < 0 get none. Row ids in
+// the result count from 0 at `begin`.
+FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* slots,
+                                const int64_t* parent_nodes, int64_t begin, int64_t end, int level);
+
+enum class Pooling { kLogSumExp, kMax };
+// Logits [R, branching] of pooled point rows: child c of row r scores the pooling of
+// <point_rows[rank], projected[r]> over its candidates; -inf where a child has none (a row with
+// no candidate at all gets 0 everywhere). Training pools by log-sum-exp; decoding by the maximum,
+// its dominant term, which costs no exponential per candidate. The table's gradient is dense:
+// a batch touches a large share of its rows (lazy Adam still updates only those).
+torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Tensor& point_rows,
+                                const FlatCandidates& candidates, int64_t branching,
+                                Pooling pooling);
 
 torch::Device TorchDevice(ComputeDevice device);
 // Rows scaled to unit L2 norm (zero rows stay zero).

@@ -133,25 +133,30 @@ TEST(NetworkTest, BatchedImagesEqualSeparateCalls) {
 
 TEST(NetworkTest, VisibilityMaskKeepsPredictionsInTheImage) {
   const RandomMap map = MakeRandomMap(3);
-  const Network network(map.shape, SmallOptions(), 5);
-  const DescriptorMatrix descriptors = RandomDescriptors(300, map.shape.descriptor_dim, 6);
-  const std::vector<uint32_t> images = {0, 2, 5, 7};
-  const PointPredictions plain = network.Predict(descriptors, images, map.tree);
-  const PointPredictions masked = network.Predict(descriptors, images, map.tree, &map.visibility);
-  size_t plain_visible = 0;
-  for (size_t k = 0; k < images.size(); ++k) {
-    for (int64_t n = 0; n < 300; ++n) {
-      const int64_t point = masked.point_indices(k, n);
-      ASSERT_GE(point, 0);
-      EXPECT_TRUE(map.visibility.IsVisible(images[k], static_cast<uint32_t>(point)));
-      EXPECT_LE(masked.confidences(k, n), 1.0f);
-      const int64_t plain_point = plain.point_indices(k, n);
-      plain_visible += plain_point >= 0 &&
-                       map.visibility.IsVisible(images[k], static_cast<uint32_t>(plain_point));
+  for (const bool pooled : {false, true}) {
+    SCOPED_TRACE(testing::Message() << "pooled point rows " << pooled);
+    NetworkOptions options = SmallOptions();
+    options.pooled_point_rows = pooled;
+    const Network network(map.shape, options, 5);
+    const DescriptorMatrix descriptors = RandomDescriptors(300, map.shape.descriptor_dim, 6);
+    const std::vector<uint32_t> images = {0, 2, 5, 7};
+    const PointPredictions plain = network.Predict(descriptors, images, map.tree);
+    const PointPredictions masked = network.Predict(descriptors, images, map.tree, &map.visibility);
+    size_t plain_visible = 0;
+    for (size_t k = 0; k < images.size(); ++k) {
+      for (int64_t n = 0; n < 300; ++n) {
+        const int64_t point = masked.point_indices(k, n);
+        ASSERT_GE(point, 0);
+        EXPECT_TRUE(map.visibility.IsVisible(images[k], static_cast<uint32_t>(point)));
+        EXPECT_LE(masked.confidences(k, n), 1.0f);
+        const int64_t plain_point = plain.point_indices(k, n);
+        plain_visible += plain_point >= 0 &&
+                         map.visibility.IsVisible(images[k], static_cast<uint32_t>(plain_point));
+      }
     }
+    // Without the mask an untrained network lands mostly on points the image does not see.
+    EXPECT_LT(plain_visible, 4 * 300 / 2);
   }
-  // Without the mask an untrained network lands mostly on points the image does not see.
-  EXPECT_LT(plain_visible, 4 * 300 / 2);
 }
 
 TEST(NetworkTest, SaveThenLoadGivesIdenticalPredictions) {

@@ -49,7 +49,8 @@ inline RandomMap MakeRandomMap(uint64_t seed) {
   return map;
 }
 
-// The four combinations of the two per-node options (the first is the paper's network).
+// The four combinations of the two per-node options (the first is the paper's network), then
+// pooled point rows.
 inline std::vector<NetworkOptions> HeadVariants(NetworkOptions base) {
   std::vector<NetworkOptions> variants;
   for (const bool node_conditioning : {false, true}) {
@@ -59,6 +60,8 @@ inline std::vector<NetworkOptions> HeadVariants(NetworkOptions base) {
       variants.push_back(base);
     }
   }
+  base.pooled_point_rows = true;
+  variants.push_back(base);
   return variants;
 }
 

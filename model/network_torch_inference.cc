@@ -47,6 +47,14 @@ class TorchForwardPass {
     if (visibility_mask != nullptr) {
       masks_ = std::make_unique<NodeVisibilityMasks>(image_indices, tree, *visibility_mask);
     }
+    if (network.options().pooled_point_rows) {
+      candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices);
+      point_rows_ = NetworkInternals::Module(network)->point_rows;
+      slot_of_row_.resize(num_rows_);
+      for (int64_t row = 0; row < num_rows_; ++row) {
+        slot_of_row_[row] = candidates_->SlotOf(static_cast<size_t>(row / num_descriptors_));
+      }
+    }
   }
 
   PointPredictions Run(const Network& network) {
@@ -113,11 +121,37 @@ class TorchForwardPass {
                                     modulation.gammas[layer].index_select(0, inverse),
                                     level->ConditionedLinear(layer, features)));
     }
+    if (level->IsPooled()) return PooledLogits(level, features, depth);
     torch::Tensor child_nodes;
     if (level->HasNodeOutput()) {
       child_nodes = ChildNodesOf(tree_, parent_node_.data(), num_rows_).to(device_);
     }
     return level->Logits(features, child_nodes);
+  }
+
+  // Pooled point rows, over chunks of rows with at most kMaxCandidates candidates between them
+  // (a row without a mask ranges over every point under its parent).
+  torch::Tensor PooledLogits(Level level, const torch::Tensor& features, int depth) {
+    constexpr size_t kMaxCandidates = size_t{1} << 21;
+    const torch::Tensor projected = level->Project(features);
+    std::vector<torch::Tensor> chunks;
+    for (int64_t begin = 0; begin < num_rows_;) {
+      int64_t end = begin;
+      size_t total = 0;
+      while (end < num_rows_ && (end == begin || total < kMaxCandidates)) {
+        if (parent_node_[end] >= 0) {
+          total +=
+              candidates_->Under(slot_of_row_[end], static_cast<uint32_t>(parent_node_[end])).size;
+        }
+        ++end;
+      }
+      const FlatCandidates flat = GatherCandidates(*candidates_, slot_of_row_.data(),
+                                                   parent_node_.data(), begin, end, depth);
+      chunks.push_back(PooledPointLogits(projected.narrow(0, begin, end - begin), point_rows_, flat,
+                                         shape_.branching, Pooling::kMax));
+      begin = end;
+    }
+    return torch::cat(chunks, 0);
   }
 
   // The most probable child among those whose subtree the row's image observes.
@@ -169,6 +203,10 @@ class TorchForwardPass {
   torch::Tensor labels_;          // [rows, levels so far]
   torch::Tensor confidence_;      // [rows]
   std::unique_ptr<NodeVisibilityMasks> masks_;
+  // Pooled point rows: the candidates of the call's images, each row's slot, the table.
+  std::unique_ptr<PointCandidates> candidates_;
+  std::vector<int> slot_of_row_;
+  torch::Tensor point_rows_;
 };
 
 }  // namespace

@@ -39,6 +39,12 @@ void KeepFreedMemoryForReuse() {
   mallopt(M_TOP_PAD, 64 << 20);
 }
 
+NetworkOptions TrainedNetworkOptions(const TrainerOptions& options) {
+  NetworkOptions network = options.network;
+  network.masked_decoding = options.visibility_softmax || network.pooled_point_rows;
+  return network;
+}
+
 void SetLearningRate(torch::optim::Adam& optimizer, double rate) {
   for (torch::optim::OptimizerParamGroup& group : optimizer.param_groups()) {
     static_cast<torch::optim::AdamOptions&>(group.options()).lr(rate);
@@ -98,6 +104,8 @@ class Trainer {
   const Scene& scene_;
   const LabelTree& tree_;
   const TrainerOptions& options_;
+  // options_.network, with masked decoding where the training's softmax was the visible one.
+  const NetworkOptions network_options_;
   const torch::Device device_;
   const NetworkShape shape_;
   const int levels_;
@@ -110,6 +118,8 @@ class Trainer {
   std::vector<LazyAdamTable> lazy_;
   Visibility visibility_;
   std::unique_ptr<NodeVisibilityMasks> node_masks_;
+  std::unique_ptr<PointCandidates> point_candidates_;  // pooled point rows
+  int finest_level_with_choice_ = -1;
   std::vector<uint32_t> check_sample_;
   bool checking_ = false;  // held-out checks are due (evaluations, and a sample to check)
   std::optional<ProgressBar> progress_;
@@ -126,6 +136,7 @@ Trainer::Trainer(const Scene& scene, const LabelTree& tree, const TrainerOptions
     : scene_(scene),
       tree_(tree),
       options_(options),
+      network_options_(TrainedNetworkOptions(options)),
       device_(TorchDevice(options.device)),
       shape_(NetworkShape::ForTree(static_cast<int>(scene.Dimension()), tree,
                                    static_cast<int>(scene.NumImages()))),
@@ -145,10 +156,10 @@ Trainer::Trainer(const Scene& scene, const LabelTree& tree, const TrainerOptions
 
 void Trainer::CreateOrRestoreNetwork(CheckpointReader* checkpoint) {
   if (checkpoint != nullptr) {
-    network_.emplace(checkpoint->ReadNetwork(shape_, options_.network, options_.device));
+    network_.emplace(checkpoint->ReadNetwork(shape_, network_options_, options_.device));
     state_ = checkpoint->ReadState(levels_, options_.seed);
   } else {
-    network_.emplace(shape_, options_.network, options_.seed);
+    network_.emplace(shape_, network_options_, options_.seed);
     network_->SetDevice(options_.device);
   }
   module_ = NetworkInternals::Module(*network_);
@@ -162,7 +173,8 @@ void Trainer::CreateOptimizers(CheckpointReader* checkpoint) {
     level->SetSparseNodeRows(options_.sparse_node_updates && level->HasNodeOutput());
   }
   for (const auto& item : module_->named_parameters()) {
-    const bool node_rows = item.key().find("node_rows") != std::string::npos;
+    const bool node_rows = item.key().find("node_rows") != std::string::npos ||
+                           item.key().find("point_rows") != std::string::npos;
     if (node_rows && options_.sparse_node_updates) {
       lazy_.push_back(LazyAdamTable::Of(item.value()));
     } else {
@@ -179,9 +191,14 @@ void Trainer::PrepareVisibilityAndCheckSample() {
   visibility_ = Visibility::FromObservations(scene_.NumImages(), scene_.NumPoints(),
                                              scene_.observation_image_indices,
                                              scene_.observation_point_indices);
-  if (options_.visibility_softmax) {
-    std::vector<uint32_t> all_images(scene_.NumImages());
-    std::iota(all_images.begin(), all_images.end(), 0u);
+  std::vector<uint32_t> all_images(scene_.NumImages());
+  std::iota(all_images.begin(), all_images.end(), 0u);
+  if (network_options_.pooled_point_rows) {
+    point_candidates_ = std::make_unique<PointCandidates>(tree_, &visibility_, all_images);
+    for (int level = 0; level < levels_; ++level) {
+      if (tree_.LevelHasChoice(level)) finest_level_with_choice_ = level;
+    }
+  } else if (options_.visibility_softmax) {
     node_masks_ = std::make_unique<NodeVisibilityMasks>(all_images, tree_, visibility_);
   }
   // The held-out sample of the checks: evenly spaced over the held-out observations.
@@ -222,8 +239,12 @@ TrainingResult Trainer::Run() {
 void Trainer::Step() {
   learning_rate_ = ScheduledLearningRate(options_, Progress());
   SetLearningRate(*optimizer_, learning_rate_);
-  const BatchContext context{scene_, tree_, options_, node_masks_.get(),
-                             options_.network.node_output_dim > 0};
+  const BatchContext context{scene_,
+                             tree_,
+                             options_,
+                             node_masks_.get(),
+                             network_options_.node_output_dim > 0,
+                             point_candidates_.get()};
   const Batch batch = MakeBatch(context, order_, state_.iteration, device_);
   BatchLoss loss = Loss(batch);
   optimizer_->zero_grad();
@@ -246,9 +267,24 @@ BatchLoss Trainer::Loss(const Batch& batch) {
       result.accuracies.push_back(torch::ones({}, torch::TensorOptions().device(device_)));
       continue;
     }
-    torch::Tensor logits = module_->levels[level]->forward(
-        descriptors, batch.images, batch.labels.narrow(1, 0, static_cast<int64_t>(level)),
-        batch.parent_nodes[level], batch.child_nodes[level]);
+    Level& level_module = module_->levels[level];
+    const torch::Tensor prefix = batch.labels.narrow(1, 0, static_cast<int64_t>(level));
+    torch::Tensor logits;
+    if (level_module->IsPooled()) {
+      const torch::Tensor features =
+          level_module->Features(descriptors, batch.images, prefix, batch.parent_nodes[level]);
+      // The finest level with a choice owns the point rows; coarser levels pool over them as
+      // they are, learning only to map a descriptor near its point's row. Their gradients, a
+      // pull on every point of the true child and a push on all the others, would otherwise
+      // swamp each row's own signal (Adam scales every row's update to the same size).
+      const bool owns_rows = level == finest_level_with_choice_;
+      logits = PooledPointLogits(level_module->Project(features),
+                                 owns_rows ? module_->point_rows : module_->point_rows.detach(),
+                                 batch.candidates[level], tree_.branching(), Pooling::kLogSumExp);
+    } else {
+      logits = level_module->forward(descriptors, batch.images, prefix, batch.parent_nodes[level],
+                                     batch.child_nodes[level]);
+    }
     if (batch.allowed[level].defined()) {
       logits = logits.masked_fill(batch.allowed[level].logical_not(),
                                   -std::numeric_limits<float>::infinity());
@@ -551,7 +587,9 @@ void WriteNetworkToBundle(
                      {"embedding_dim", network_options.embedding_dim},
                      {"conditioned_layers", network_options.conditioned_layers},
                      {"node_conditioning", network_options.node_conditioning},
-                     {"node_output_dim", network_options.node_output_dim}};
+                     {"node_output_dim", network_options.node_output_dim},
+                     {"pooled_point_rows", network_options.pooled_point_rows},
+                     {"masked_decoding", network_options.masked_decoding}};
   json["parameters"] = result.network.NumParameters();
   json["training"] = {
       {"iterations", result.iterations},

@@ -212,6 +212,26 @@ TEST_F(TinyCityTrainerTest, VisibilitySoftmaxRangesOverTheImagesChildrenOnly) {
   EXPECT_NEAR(no_image.log[0].loss, full.log[0].loss, 0.5);
 }
 
+TEST_F(TinyCityTrainerTest, PooledPointRowsLearnAndAreDecodedWithTheMask) {
+  TrainerOptions options = QuickOptions(400);
+  options.network.node_output_dim = 32;
+  options.network.pooled_point_rows = true;
+  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
+  EXPECT_TRUE(result.network.options().masked_decoding);
+  const NetworkEvaluation training =
+      EvaluateNetwork(result.network, Map().scene, Map().tree,
+                      TrainingObservations(Map().scene, options), &Map().visibility);
+  std::cout << fmt::format("tiny city, pooled point rows: masked training leaf accuracy {:.4f}\n",
+                           training.leaf_accuracy);
+  EXPECT_GE(training.leaf_accuracy, 0.99);
+  // The visibility softmax alone also asks for masked decoding; the defaults do not.
+  options.network.pooled_point_rows = false;
+  options.max_iterations = 1;
+  EXPECT_FALSE(TrainNetwork(Map().scene, Map().tree, options).network.options().masked_decoding);
+  options.visibility_softmax = true;
+  EXPECT_TRUE(TrainNetwork(Map().scene, Map().tree, options).network.options().masked_decoding);
+}
+
 TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {
   // A rate far too high makes the held-out accuracy wander: the returned network is the best
   // checked one, and it scores what that check scored.

@@ -19,9 +19,10 @@ constexpr uint64_t kStreamSiblings = 0x7369626c;  // "sibl"
 
 // The per-row part of a batch, on the CPU.
 struct BatchRows {
-  torch::Tensor descriptors;  // [B, D], augmented, not yet normalized
-  torch::Tensor images;       // [B]
-  torch::Tensor labels;       // [B, levels]
+  torch::Tensor descriptors;       // [B, D], augmented, not yet normalized
+  torch::Tensor images;            // [B]
+  torch::Tensor labels;            // [B, levels]
+  std::vector<int> source_images;  // the observations' images, before image dropout
 };
 
 BatchRows DrawRows(const BatchContext& context, SampleOrder& order, int64_t iteration) {
@@ -36,7 +37,7 @@ BatchRows DrawRows(const BatchContext& context, SampleOrder& order, int64_t iter
     observations[row] = order.At(static_cast<uint64_t>(iteration * size + row));
   }
   BatchRows rows{torch::empty({size, dim}, torch::kFloat32), torch::empty({size}, torch::kInt64),
-                 torch::empty({size, levels}, torch::kInt64)};
+                 torch::empty({size, levels}, torch::kInt64), std::vector<int>(size)};
   float* descriptor_data = rows.descriptors.data_ptr<float>();
   int64_t* image_data = rows.images.data_ptr<int64_t>();
   int64_t* label_data = rows.labels.data_ptr<int64_t>();
@@ -59,6 +60,7 @@ BatchRows DrawRows(const BatchContext& context, SampleOrder& order, int64_t iter
         }
       }
       const bool drop_image = options.image_dropout > 0 && random.Bernoulli(options.image_dropout);
+      rows.source_images[row] = static_cast<int>(scene.observation_image_indices[observation]);
       image_data[row] = drop_image ? no_image : scene.observation_image_indices[observation];
       const LabelTree::Label* path =
           tree.LabelsOfPoint(scene.observation_point_indices[observation]);
@@ -201,6 +203,7 @@ Batch MakeBatch(const BatchContext& context, SampleOrder& order, int64_t iterati
               {},
               {},
               {},
+              {},
               {}};
   const int64_t size = context.options.batch_size;
   const int levels = tree.levels();
@@ -216,7 +219,15 @@ Batch MakeBatch(const BatchContext& context, SampleOrder& order, int64_t iterati
     rows.level = level;
     torch::Tensor parents = torch::from_blob(node.data(), {size}, torch::kInt64).clone();
     torch::Tensor children, allowed, targets;
-    if (tree.LevelHasChoice(level) && context.node_output && context.masks != nullptr) {
+    FlatCandidates candidates;
+    if (tree.LevelHasChoice(level) && context.point_candidates != nullptr) {
+      std::vector<int> slots(size);
+      for (int64_t row = 0; row < size; ++row) {
+        slots[row] = context.point_candidates->SlotOf(drawn.source_images[row]);
+      }
+      candidates =
+          GatherCandidates(*context.point_candidates, slots.data(), node.data(), 0, size, level);
+    } else if (tree.LevelHasChoice(level) && context.node_output && context.masks != nullptr) {
       // Only the candidates are gathered: the children the image sees (a few of up to
       // `branching`). A row without an image ranges over all children, sampled down to as many as
       // the widest image row has (the true child and random siblings), so that it costs no more.
@@ -233,6 +244,7 @@ Batch MakeBatch(const BatchContext& context, SampleOrder& order, int64_t iterati
     batch.child_nodes.push_back(children);
     batch.allowed.push_back(allowed);
     batch.targets.push_back(targets);
+    batch.candidates.push_back(std::move(candidates));
     for (int64_t row = 0; row < size; ++row) {
       node[row] = tree.FirstChild(rows.Parent(row)) + rows.Label(row);
     }

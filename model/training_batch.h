@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "map/label_tree.h"
+#include "model/network_module.h"
 #include "model/trainer.h"
 #include "scene/scene.h"
 
@@ -49,6 +50,9 @@ struct Batch {
   // softmax, child_nodes holds only the candidates, [B, K], and targets [B] the true child's
   // column (undefined: the label).
   std::vector<torch::Tensor> parent_nodes, child_nodes, allowed, targets;
+  // Pooled point rows, per level: each row's candidate points, those under its parent that its
+  // observation's image sees (also when image dropout hid the image from the generator).
+  std::vector<FlatCandidates> candidates;
 };
 
 // What a batch needs of the tree beyond the labels: node visibility per image for the
@@ -59,6 +63,7 @@ struct BatchContext {
   const TrainerOptions& options;
   const NodeVisibilityMasks* masks = nullptr;  // slot = image index
   bool node_output = false;
+  const PointCandidates* point_candidates = nullptr;  // pooled point rows; entry k = image k
 };
 
 // The batch of `iteration`: options.batch_size rows taken from `order`, augmented from streams

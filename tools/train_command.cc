@@ -30,6 +30,7 @@ struct TrainArguments {
   bool no_keep_best = false;
   std::string schedule;
   bool node_output_dim_given = false;
+  std::string output;  // shared, node, pooled; empty: from the map's size
   TrainerOptions options;
 };
 
@@ -63,6 +64,26 @@ std::vector<std::pair<std::string, NetworkEvaluation>> EvaluateHeldOut(const Net
   return evaluations;
 }
 
+// The output layers `output` names (shared, node, pooled), or the map's default when empty;
+// node rows keep an explicit --node-output-dim.
+void ChooseOutputLayers(const std::string& output, size_t num_points, bool node_output_dim_given,
+                        NetworkOptions& network) {
+  const NetworkOptions defaults = DefaultNetworkOptions(num_points);
+  if (output.empty()) {
+    network.pooled_point_rows = defaults.pooled_point_rows && network.node_output_dim > 0;
+    return;
+  }
+  if (output == "shared") {
+    network.node_output_dim = 0;
+    network.pooled_point_rows = false;
+    return;
+  }
+  if (!node_output_dim_given && network.node_output_dim == 0) {
+    network.node_output_dim = DefaultNetworkOptions(kMinPointsForNodeOutputRows).node_output_dim;
+  }
+  network.pooled_point_rows = output == "pooled";
+}
+
 int RunTrain(TrainArguments& arguments) {
   TrainerOptions& options = arguments.options;
   options.device = ParseComputeDevice(arguments.device);
@@ -88,6 +109,10 @@ int RunTrain(TrainArguments& arguments) {
   } else if (!arguments.node_output_dim_given) {
     options.network.node_output_dim =
         DefaultNetworkOptions(map->scene().NumPoints()).node_output_dim;
+  }
+  if (!arguments.paper) {
+    ChooseOutputLayers(arguments.output, map->scene().NumPoints(), arguments.node_output_dim_given,
+                       options.network);
   }
   if (arguments.no_node_conditioning) options.network.node_conditioning = false;
   if (arguments.visibility_softmax) options.visibility_softmax = true;
@@ -176,6 +201,12 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
                    "Width r of the per-node output rows (0: the paper's shared output layer; "
                    "default from the map's size)")
       ->each([arguments](const std::string&) { arguments->node_output_dim_given = true; });
+  command
+      ->add_option("--output", arguments->output,
+                   "Output layers: shared (the paper's Linear(C, branching) per level), node (a "
+                   "row per tree node), pooled (a row per point, pooled over each child's points "
+                   "the image sees); default from the map's size")
+      ->check(CLI::IsMember({"shared", "node", "pooled"}));
   command->add_flag("--no-node-conditioning", arguments->no_node_conditioning,
                     "Condition on summed label embeddings (the paper) instead of node rows");
   command->add_flag("--visibility-softmax", arguments->visibility_softmax,

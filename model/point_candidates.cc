@@ -1,0 +1,59 @@
+#include "model/point_candidates.h"
+
+#include <algorithm>
+#include <unordered_map>
+
+namespace hscloc {
+
+PointCandidates::PointCandidates(const LabelTree& tree, const Visibility* visibility,
+                                 const std::vector<uint32_t>& images)
+    : tree_(tree) {
+  for (int depth = 0; depth < tree.levels(); ++depth) first_leaf_ = tree.FirstChild(first_leaf_);
+  num_ranks_ = tree.NumNodes() - first_leaf_;
+  slot_of_k_.assign(images.size(), -1);
+  offsets_.push_back(0);
+  std::unordered_map<uint32_t, int> slot_of_image;
+  for (size_t k = 0; k < images.size(); ++k) {
+    const uint32_t image = images[k];
+    if (visibility == nullptr || image >= visibility->NumImages()) continue;
+    const auto [known, inserted] =
+        slot_of_image.emplace(image, static_cast<int>(offsets_.size()) - 1);
+    slot_of_k_[k] = known->second;
+    if (!inserted) continue;
+    const size_t begin = ranks_.size();
+    for (const uint32_t* point = visibility->PointsBegin(image);
+         point != visibility->PointsEnd(image); ++point) {
+      ranks_.push_back(RankOfPoint(*point));
+    }
+    std::sort(ranks_.begin() + static_cast<std::ptrdiff_t>(begin), ranks_.end());
+    offsets_.push_back(ranks_.size());
+  }
+}
+
+uint32_t PointCandidates::RankOfPoint(uint32_t point_index) const {
+  return static_cast<uint32_t>(
+             tree_.NodeOfLabels(tree_.LabelsOfPoint(point_index), tree_.levels())) -
+         first_leaf_;
+}
+
+uint32_t PointCandidates::FirstRankUnder(uint32_t node) const {
+  for (int depth = tree_.NodeLevel(node); depth < tree_.levels(); ++depth) {
+    node = tree_.FirstChild(node);
+  }
+  return node - first_leaf_;
+}
+
+CandidateSpan PointCandidates::Under(int slot, uint32_t node) const {
+  const uint32_t first = FirstRankUnder(node);
+  const bool last_of_depth =
+      node + 1 >= tree_.NumNodes() || tree_.NodeLevel(node + 1) != tree_.NodeLevel(node);
+  const uint32_t end = last_of_depth ? static_cast<uint32_t>(num_ranks_) : FirstRankUnder(node + 1);
+  if (slot < 0) return {nullptr, first, static_cast<size_t>(end - first)};
+  const uint32_t* begin = ranks_.data() + offsets_[slot];
+  const uint32_t* stop = ranks_.data() + offsets_[slot + 1];
+  const uint32_t* lower = std::lower_bound(begin, stop, first);
+  const uint32_t* upper = std::lower_bound(lower, stop, end);
+  return {lower, 0, static_cast<size_t>(upper - lower)};
+}
+
+}  // namespace hscloc

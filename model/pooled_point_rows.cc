@@ -1,0 +1,94 @@
+// Pooled point rows through libtorch operators: the trainer's loss and the libtorch inference path
+// (model/network_module.h).
+#include <algorithm>
+#include <limits>
+#include <vector>
+
+#include "model/network_module.h"
+
+namespace hscloc {
+
+FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* slots,
+                                const int64_t* parent_nodes, int64_t begin, int64_t end,
+                                int level) {
+  std::vector<int64_t> ranks, rows, groups;
+  for (int64_t r = begin; r < end; ++r) {
+    if (parent_nodes[r] < 0) continue;
+    const CandidateSpan span = candidates.Under(slots[r], static_cast<uint32_t>(parent_nodes[r]));
+    for (size_t i = 0; i < span.size; ++i) {
+      ranks.push_back(span[i]);
+      rows.push_back(r - begin);
+      groups.push_back(candidates.LabelOfRank(span[i], level));
+    }
+  }
+  const auto tensor = [](std::vector<int64_t>& values) {
+    return torch::from_blob(values.data(), {static_cast<int64_t>(values.size())}, torch::kInt64)
+        .clone();
+  };
+  return {tensor(ranks), tensor(rows), tensor(groups)};
+}
+
+namespace {
+
+// Candidates per piece of the scores: the [piece, r + 1] gathers and their gradients stay under
+// glibc's largest mmap threshold (32 MiB, model/trainer.cc), so that they are reused from the heap
+// rather than mapped and page-faulted in anew for every step.
+constexpr int64_t kCandidatesPerPiece = int64_t{1} << 17;
+
+// <point_rows[rank_i], projected[row_i]> for every candidate i, [T].
+torch::Tensor CandidateScores(const torch::Tensor& projected, const torch::Tensor& point_rows,
+                              const torch::Tensor& ranks, const torch::Tensor& rows) {
+  std::vector<torch::Tensor> pieces;
+  for (int64_t begin = 0; begin < ranks.size(0); begin += kCandidatesPerPiece) {
+    const int64_t size = std::min(kCandidatesPerPiece, ranks.size(0) - begin);
+    const torch::Tensor gathered = point_rows.index_select(0, ranks.narrow(0, begin, size));
+    pieces.push_back((gathered * projected.index_select(0, rows.narrow(0, begin, size))).sum(1));
+  }
+  if (pieces.empty()) return torch::empty({0}, projected.options());
+  return torch::cat(pieces);
+}
+
+// The largest score of each cell (row * branching + child) of `num_cells`; -inf where none.
+torch::Tensor CellMaxima(const torch::Tensor& cells, const torch::Tensor& scores,
+                         int64_t num_cells) {
+  const torch::Tensor cpu_cells = cells.to(torch::kCPU).contiguous();
+  const torch::Tensor cpu_scores = scores.detach().to(torch::kCPU).contiguous();
+  torch::Tensor maxima = torch::full({num_cells}, -std::numeric_limits<float>::infinity());
+  float* best = maxima.data_ptr<float>();
+  const int64_t* cell = cpu_cells.data_ptr<int64_t>();
+  const float* score = cpu_scores.data_ptr<float>();
+  for (int64_t i = 0; i < cpu_cells.numel(); ++i) best[cell[i]] = std::max(best[cell[i]], score[i]);
+  return maxima.to(scores.device());
+}
+
+}  // namespace
+
+torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Tensor& point_rows,
+                                const FlatCandidates& candidates, int64_t branching,
+                                Pooling pooling) {
+  const torch::Device device = projected.device();
+  const int64_t num_rows = projected.size(0);
+  const torch::Tensor rows = candidates.rows.to(device);
+  const torch::Tensor cells = rows * branching + candidates.groups.to(device);
+  const torch::Tensor scores =
+      CandidateScores(projected, point_rows, candidates.ranks.to(device), rows);
+  // The maximum per cell: the pooled logit itself, or log-sum-exp's stabilizer (a constant for
+  // the gradient).
+  const torch::Tensor best = CellMaxima(cells, scores, num_rows * branching);
+  torch::Tensor logits = best;
+  if (pooling == Pooling::kLogSumExp) {
+    const torch::Tensor stable = best.clamp_min(-1e30);
+    const torch::Tensor sums =
+        torch::zeros({num_rows * branching}, projected.options())
+            .index_add(0, cells, (scores - stable.index_select(0, cells)).exp());
+    // Only cells without candidates sum to 0; they are set to -inf below.
+    logits = (sums.clamp_min(1e-30).log() + stable)
+                 .masked_fill(best.isneginf(), -std::numeric_limits<float>::infinity());
+  }
+  logits = logits.view({num_rows, branching});
+  // A row without any candidate keeps finite logits, as a path that left the tree does.
+  const torch::Tensor empty = logits.isneginf().all(1, /*keepdim=*/true);
+  return logits.masked_fill(empty, 0.0f);
+}
+
+}  // namespace hscloc

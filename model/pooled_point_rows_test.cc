@@ -1,0 +1,105 @@
+// Pooled point rows: the candidate points of a (image, node) against a brute-force walk of the
+// tree, and the pooled logits against their definition.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "model/network_module.h"
+#include "model/network_test_support.h"
+#include "model/point_candidates.h"
+
+namespace hscloc {
+namespace {
+
+using testing_support::MakeRandomMap;
+using testing_support::RandomMap;
+
+// Whether the label path of `point` passes through `node`.
+bool IsUnder(const LabelTree& tree, uint32_t point, uint32_t node) {
+  const int depth = tree.NodeLevel(node);
+  return tree.NodeOfLabels(tree.LabelsOfPoint(point), depth) == static_cast<int64_t>(node);
+}
+
+TEST(PointCandidatesTest, SpansHoldExactlyThePointsUnderTheNodeThatTheImageSees) {
+  const RandomMap map = MakeRandomMap(5);
+  const std::vector<uint32_t> images = {3, 0, 3, 9};  // 9: the "no image" index
+  const PointCandidates candidates(map.tree, &map.visibility, images);
+  EXPECT_EQ(candidates.NumRanks(), map.tree.NumPoints());
+  EXPECT_EQ(candidates.SlotOf(0), candidates.SlotOf(2));
+  EXPECT_NE(candidates.SlotOf(0), candidates.SlotOf(1));
+  EXPECT_EQ(candidates.SlotOf(3), -1);
+  for (uint32_t point = 0; point < map.tree.NumPoints(); ++point) {
+    const uint32_t rank = candidates.RankOfPoint(point);
+    for (int level = 0; level < map.tree.levels(); ++level) {
+      EXPECT_EQ(candidates.LabelOfRank(rank, level), map.tree.LabelsOfPoint(point)[level]);
+    }
+  }
+  for (size_t k = 0; k < images.size(); ++k) {
+    for (uint32_t node = 0; node < map.tree.NumNodes(); ++node) {
+      std::vector<uint32_t> expected;
+      for (uint32_t point = 0; point < map.tree.NumPoints(); ++point) {
+        const bool seen =
+            images[k] >= map.visibility.NumImages() || map.visibility.IsVisible(images[k], point);
+        if (seen && IsUnder(map.tree, point, node)) {
+          expected.push_back(candidates.RankOfPoint(point));
+        }
+      }
+      std::sort(expected.begin(), expected.end());
+      const CandidateSpan span = candidates.Under(candidates.SlotOf(k), node);
+      std::vector<uint32_t> actual;
+      for (size_t i = 0; i < span.size; ++i) actual.push_back(span[i]);
+      ASSERT_EQ(actual, expected) << "image " << images[k] << ", node " << node;
+    }
+  }
+}
+
+TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
+  torch::manual_seed(3);
+  const int64_t rows = 3, dim = 4, branching = 5;
+  const torch::Tensor table = torch::randn({10, dim + 1});
+  const torch::Tensor projected = torch::randn({rows, dim + 1});
+  // Row 0: children 1 (points 2, 7) and 4 (point 5); row 1: child 0 (point 2, a candidate of
+  // row 0 too); row 2: no candidate at all.
+  const FlatCandidates candidates{torch::tensor({2, 7, 5, 2}, torch::kInt64),
+                                  torch::tensor({0, 0, 0, 1}, torch::kInt64),
+                                  torch::tensor({1, 1, 4, 0}, torch::kInt64)};
+  const auto score = [&](int64_t row, int64_t rank) {
+    return (table[rank] * projected[row]).sum().item<float>();
+  };
+  const torch::Tensor sum_logits =
+      PooledPointLogits(projected, table, candidates, branching, Pooling::kLogSumExp);
+  const torch::Tensor max_logits =
+      PooledPointLogits(projected, table, candidates, branching, Pooling::kMax);
+  const float lowest = -std::numeric_limits<float>::infinity();
+  const float s2 = score(0, 2), s7 = score(0, 7);
+  EXPECT_NEAR(sum_logits[0][1].item<float>(), std::log(std::exp(s2) + std::exp(s7)), 1e-5);
+  EXPECT_NEAR(max_logits[0][1].item<float>(), std::max(s2, s7), 1e-6);
+  EXPECT_NEAR(sum_logits[0][4].item<float>(), score(0, 5), 1e-5);
+  EXPECT_NEAR(sum_logits[1][0].item<float>(), score(1, 2), 1e-5);
+  for (const int64_t child : {0, 2, 3}) EXPECT_EQ(sum_logits[0][child].item<float>(), lowest);
+  EXPECT_EQ(max_logits[1][3].item<float>(), lowest);
+  EXPECT_TRUE(sum_logits[2].eq(0).all().item<bool>()) << "a row without candidates stays finite";
+  EXPECT_TRUE(max_logits[2].eq(0).all().item<bool>());
+}
+
+TEST(PooledPointLogitsTest, TrainingGradientReachesOnlyTheCandidatesRows) {
+  torch::manual_seed(4);
+  torch::Tensor table = torch::randn({8, 3}).requires_grad_(true);
+  const torch::Tensor projected = torch::randn({2, 3});
+  const FlatCandidates candidates{torch::tensor({1, 6, 3}, torch::kInt64),
+                                  torch::tensor({0, 0, 1}, torch::kInt64),
+                                  torch::tensor({0, 2, 2}, torch::kInt64)};
+  const torch::Tensor logits =
+      PooledPointLogits(projected, table, candidates, 4, Pooling::kLogSumExp);
+  torch::nn::functional::cross_entropy(logits, torch::tensor({0, 2}, torch::kInt64)).backward();
+  const torch::Tensor gradient = table.grad();
+  EXPECT_TRUE(torch::isfinite(gradient).all().item<bool>());
+  const torch::Tensor touched = gradient.abs().sum(1).nonzero().squeeze(1);
+  // Row 1 has a single candidate child: nothing to learn, a zero gradient on its point.
+  EXPECT_TRUE(touched.equal(torch::tensor({1, 6}, torch::kInt64)));
+}
+
+}  // namespace
+}  // namespace hscloc
