@@ -29,6 +29,27 @@ find_package(spdlog REQUIRED)
 find_package(nlohmann_json 3 REQUIRED)
 find_package(GTest REQUIRED)
 find_package(benchmark REQUIRED)
+# The Python client's tests need the interpreter that Debian's python3-zmq, python3-protobuf,
+# python3-numpy, python3-h5py and python3-pytest serve: the first of the python3 on the PATH and
+# /usr/bin/python3 that imports them (HSCLOC_PYTHON chooses another).
+find_package(Python3 COMPONENTS Interpreter)
+set(HSCLOC_PYTHON "" CACHE FILEPATH "Python 3 for the Python client's tests (empty: found)")
+set(HSCLOC_PYTHON_EXECUTABLE "${HSCLOC_PYTHON}")
+if(NOT HSCLOC_PYTHON_EXECUTABLE)
+  foreach(_python ${Python3_EXECUTABLE} /usr/bin/python3)
+    execute_process(COMMAND ${_python} -c "import zmq, google.protobuf, numpy, h5py, pytest"
+      RESULT_VARIABLE _python_missing OUTPUT_QUIET ERROR_QUIET)
+    if(_python_missing EQUAL 0)
+      set(HSCLOC_PYTHON_EXECUTABLE ${_python})
+      break()
+    endif()
+  endforeach()
+endif()
+if(NOT HSCLOC_PYTHON_EXECUTABLE)
+  message(WARNING "No python3 imports zmq, google.protobuf, numpy, h5py and pytest: the Python "
+                  "client's tests will fail (scripts/install-deps.sh installs them)")
+  set(HSCLOC_PYTHON_EXECUTABLE python3)
+endif()
 find_program(COLMAP_EXECUTABLE colmap DOC "The COLMAP binary; tests cross-check our models with it")
 
 # libtorch's config gives a variable list; keep its flags on the one target that needs them.

@@ -10,6 +10,7 @@ packages=(
   libhdf5-dev libsqlite3-dev sqlite3 libssl-dev libcli11-dev libspdlog-dev libfmt-dev nlohmann-json3-dev
   libopenblas0-pthread
   libgtest-dev libgmock-dev libbenchmark-dev python3 python3-yaml
+  python3-zmq python3-protobuf python3-numpy python3-h5py python3-pytest
   colmap
 )
 

@@ -120,8 +120,8 @@ TEST_F(CliTest, LocalizeResumeAndEvaluate) {
   EXPECT_TRUE(found_day);
 }
 
-// The server path (hscloc serve + hscloc-client batch, float32 descriptors) writes the same
-// submission as the offline batch.
+// The server path (hscloc serve + hscloc-client batch, float32 descriptors, the global options
+// after the subcommand) writes the same submission as the offline batch.
 TEST_F(CliTest, ClientBatchThroughTheServerEqualsOfflineLocalize) {
   const std::string offline = Temp("offline.txt");
   ASSERT_EQ(Hscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
@@ -151,7 +151,7 @@ TEST_F(CliTest, ClientBatchThroughTheServerEqualsOfflineLocalize) {
   ASSERT_FALSE(endpoint.empty()) << ReadText(server_log);
   const std::string served = Temp("served.txt");
   const int status = testing::RunCommand(
-      fmt::format("{} --server {} --float32 batch --queries {} --features {} --out {} --inflight 4",
+      fmt::format("{} batch --server {} --float32 --queries {} --features {} --out {} --inflight 4",
                   HSCLOC_CLIENT_BINARY, endpoint, NightList(), Features(), served),
       Temp("client.log"));
   kill(server, SIGTERM);
@@ -169,6 +169,25 @@ TEST_F(CliTest, ClientBatchThroughTheServerEqualsOfflineLocalize) {
   for (const NamedPose& pose : actual) {
     EXPECT_EQ(FormatPoseLine(pose.name, pose.cam_from_world), expected[pose.name]);
   }
+}
+
+// hscloc-client's global options are read on either side of the subcommand: the timeout error
+// names the endpoint and the timeout given after it.
+TEST(ClientCliTest, GlobalOptionsWorkOnEitherSideOfTheSubcommand) {
+  testing::TempDir temp;
+  const fs::path log = temp.path() / "health.log";
+  EXPECT_EQ(testing::RunCommand(fmt::format("{} --retries 0 health --server tcp://127.0.0.1:1 "
+                                            "--timeout-ms 100",
+                                            HSCLOC_CLIENT_BINARY),
+                                log.string()),
+            1)
+      << ReadText(log);
+  EXPECT_THAT(ReadText(log),
+              HasSubstr("tcp://127.0.0.1:1: no reply within 100 ms after 1 attempts"));
+  EXPECT_NE(testing::RunCommand(fmt::format("{} health --no-such-option", HSCLOC_CLIENT_BINARY),
+                                log.string()),
+            0);
+  EXPECT_THAT(ReadText(log), HasSubstr("--no-such-option"));
 }
 
 TEST_F(CliTest, BadInputsFailWithAClearMessage) {

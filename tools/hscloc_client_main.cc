@@ -80,6 +80,9 @@ int main(int argc, char** argv) {
   using namespace hscloc;
   CLI::App app{"hscloc-client: localize photos or features against an hscloc server"};
   app.require_subcommand(1);
+  // The global options work on either side of the subcommand (`batch --server X`): what a
+  // subcommand does not know falls through to them. Subcommands inherit this when added.
+  app.fallthrough();
   app.set_version_flag("--version", "hscloc-client 0.1.0");
   CommonArguments common;
   app.add_option("--server", common.client.server, "Server endpoint")->capture_default_str();

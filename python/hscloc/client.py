@@ -1,0 +1,289 @@
+"""The connection to an hscloc server: zguide's Lazy Pirate over a DEALER socket, as the C++
+client does it (client/localization_client.h)."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Optional, Union
+
+import numpy as np
+import zmq
+
+from .camera import CameraLike
+from .errors import ProtocolError, ServerError, ServerTimeoutError
+from .requests import LocalizeOptions, make_localize_request
+from .results import Health, LocalizationResult, ServerInfo
+from .wire import PROTOCOL_VERSION, RESULT_STATUSES, pb, status_name
+
+if TYPE_CHECKING:
+    from .batch import BatchSummary, QueryInput
+
+# A Z85 CURVE key (40 characters), or the path of a file whose first line holds one
+# (`hscloc keygen --out NAME` writes NAME.pub and NAME.key).
+KeyLike = Union[str, bytes, os.PathLike]
+Z85_KEY_LENGTH = 40
+
+
+def read_curve_key(key: KeyLike, argument: str) -> bytes:
+    """A Z85 key given as itself or as a key file; raises ValueError naming `argument`."""
+    if isinstance(key, bytes):
+        text = key.decode("ascii", errors="replace")
+    elif isinstance(key, str) and len(key) == Z85_KEY_LENGTH and not os.path.exists(key):
+        text = key
+    else:
+        path = Path(key)
+        try:
+            text = path.read_text().split("\n", 1)[0].strip()
+        except OSError as error:
+            raise ValueError(f"{argument}: cannot read a key from '{path}': {error}") from None
+    if len(text) != Z85_KEY_LENGTH:
+        raise ValueError(f"{argument}: a Z85 CURVE key has {Z85_KEY_LENGTH} characters, "
+                         f"not {len(text)}")
+    return text.encode("ascii")
+
+
+@dataclass(frozen=True)
+class ClientOptions:
+    """Everything a connection is made from; a batch opens one connection per request in flight
+    with the same options."""
+
+    endpoint: str
+    timeout_s: float  # per attempt
+    retries: int  # attempts after the first, each on a fresh socket
+    curve_server_key: Optional[bytes]  # None: no encryption
+    curve_public_key: Optional[bytes]
+    curve_secret_key: Optional[bytes]
+
+
+class Client:
+    """A connection to `hscloc serve` (docs/protocol.md).
+
+    Each call waits `timeout_s` for its reply; without one the socket is closed, a fresh one
+    connects and the request is sent again, up to `retries` times, after which
+    ServerTimeoutError is raised. Every request carries a call id that the server echoes, so
+    that a late reply to an abandoned attempt is recognised and dropped. A failure status in the
+    reply raises ServerError naming the status and the server's message.
+
+    A Client is for one thread at a time; it is a context manager that closes its socket.
+
+    Args:
+        endpoint: the server, e.g. "tcp://localhost:5555".
+        timeout_s: seconds to wait for each attempt's reply.
+        retries: attempts after the first.
+        curve_server_key: the server's CURVE public key (or its .pub file): encrypts traffic.
+        curve_client_keys: this client's (public, secret) CURVE keys (or their files), which the
+            server's --curve-allowed-keys must list; generated when None.
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        timeout_s: float = 10.0,
+        retries: int = 2,
+        curve_server_key: Optional[KeyLike] = None,
+        curve_client_keys: Optional[tuple[KeyLike, KeyLike]] = None,
+    ):
+        if not isinstance(endpoint, str) or not endpoint:
+            raise ValueError(f"endpoint: {endpoint!r} is not a ZeroMQ endpoint")
+        if not timeout_s > 0 or not math.isfinite(timeout_s):
+            raise ValueError(f"timeout_s: {timeout_s} must be a positive number of seconds")
+        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+            raise ValueError(f"retries: {retries!r} must be an integer >= 0")
+        public_key = secret_key = server_key = None
+        if curve_server_key is not None:
+            if not zmq.has("curve"):
+                raise ValueError("curve_server_key: this libzmq has no CURVE support")
+            server_key = read_curve_key(curve_server_key, "curve_server_key")
+            if curve_client_keys is None:
+                public_key, secret_key = zmq.curve_keypair()
+            else:
+                public_key = read_curve_key(curve_client_keys[0], "curve_client_keys[0]")
+                secret_key = read_curve_key(curve_client_keys[1], "curve_client_keys[1]")
+        elif curve_client_keys is not None:
+            raise ValueError("curve_client_keys: given without curve_server_key")
+        self._init(ClientOptions(endpoint, float(timeout_s), retries, server_key, public_key,
+                                 secret_key))
+
+    @classmethod
+    def from_options(cls, options: ClientOptions) -> "Client":
+        """A new connection with the options of another (see ClientOptions)."""
+        client = cls.__new__(cls)
+        client._init(options)
+        return client
+
+    def _init(self, options: ClientOptions) -> None:
+        self.options = options
+        self._context = zmq.Context()
+        self._socket: Optional[zmq.Socket] = None
+        self._next_call = 0
+        self._connect()
+
+    def _connect(self) -> None:
+        if self._socket is not None:
+            self._socket.close(linger=0)
+        socket = self._context.socket(zmq.DEALER)
+        # A closed attempt's unsent request is dropped rather than delaying the exit.
+        socket.linger = 0
+        if self.options.curve_server_key is not None:
+            socket.curve_serverkey = self.options.curve_server_key
+            socket.curve_publickey = self.options.curve_public_key
+            socket.curve_secretkey = self.options.curve_secret_key
+        try:
+            socket.connect(self.options.endpoint)
+        except zmq.ZMQError as error:
+            socket.close(linger=0)
+            raise ValueError(f"endpoint: cannot connect to '{self.options.endpoint}': {error}") \
+                from None
+        self._socket = socket
+
+    def close(self) -> None:
+        """Closes the socket; later calls raise."""
+        if self._socket is not None:
+            self._socket.close(linger=0)
+            self._socket = None
+        self._context.term()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def call(self, request: pb.Request) -> pb.Response:
+        """Sends a wire Request (its protocol version set here) and returns the Response, with
+        the timeouts and retries above. Raises ServerTimeoutError or ProtocolError."""
+        if self._socket is None:
+            raise ValueError(f"client of {self.options.endpoint} is closed")
+        request.protocol_version = PROTOCOL_VERSION
+        payload = request.SerializeToString()
+        for _ in range(self.options.retries + 1):
+            self._next_call += 1
+            call_id = str(self._next_call).encode()
+            self._socket.send_multipart([call_id, payload])
+            deadline = time.monotonic() + self.options.timeout_s
+            while (left_s := deadline - time.monotonic()) > 0:
+                if not self._socket.poll(max(1, math.ceil(left_s * 1000)), zmq.POLLIN):
+                    continue
+                frames = self._socket.recv_multipart()
+                if len(frames) != 2 or frames[0] != call_id:
+                    continue  # a late reply to an abandoned attempt
+                response = pb.Response()
+                try:
+                    response.ParseFromString(frames[1])
+                except Exception as error:  # protobuf raises its DecodeError or a RuntimeWarning
+                    raise ProtocolError(
+                        f"{self.options.endpoint}: the reply is not an hscloc Response ({error})"
+                    ) from None
+                return response
+            self._connect()  # Lazy Pirate: a fresh socket for the next attempt
+        raise ServerTimeoutError(self.options.endpoint, self.options.timeout_s,
+                                 self.options.retries + 1)
+
+    def localize(
+        self,
+        keypoints: np.ndarray,
+        descriptors: np.ndarray,
+        camera: CameraLike,
+        global_descriptor: Optional[np.ndarray] = None,
+        top_k: Optional[int] = None,
+        *,
+        query_name: str = "",
+        visibility_filter: Optional[bool] = None,
+        exhaustive: Optional[bool] = None,
+        map_id: str = "",
+    ) -> LocalizationResult:
+        """Localizes one query image from its local features.
+
+        Args:
+            keypoints: N x 2 pixels (x, y), COLMAP's convention: the centre of the top-left
+                pixel is (0.5, 0.5). hloc's features.h5 puts it at (0, 0): add 0.5, or read
+                with hscloc.read_hloc_features. Any float dtype; sent as float32.
+            descriptors: N x D, one row per keypoint, float32 or float16 (sent as given; D must
+                be the map's, see info()). hloc's features.h5 stores D x N: pass its transpose.
+            camera: a hscloc.Camera, "MODEL WIDTH HEIGHT PARAMS..." or a pycolmap.Camera.
+            global_descriptor: (G,) floats, for maps whose retrieval needs one.
+            top_k: retrieved database images (1..100); None keeps the server's.
+            query_name: names the query in the server's logs and in errors.
+            visibility_filter: drop matches to points the retrieved image does not see; None
+                keeps the server's setting.
+            exhaustive: pose every candidate (True) or stop at the first with enough inliers.
+            map_id: the map the server must serve ("" accepts any).
+
+        Returns:
+            The result, status "OK" or "NOT_LOCALIZED".
+
+        Raises:
+            TypeError, ValueError: a bad array or option, naming it, before anything is sent.
+            ServerError: any other status, with the server's message.
+            ServerTimeoutError: no reply after every attempt.
+        """
+        options = LocalizeOptions(top_k, visibility_filter, exhaustive)
+        localize = make_localize_request(keypoints, descriptors, camera,
+                                         global_descriptor=global_descriptor, options=options,
+                                         query_name=query_name, map_id=map_id)
+        response = self.call(pb.Request(localize=localize))
+        if not response.HasField("localize"):
+            # The envelope itself was refused (wrong version, undecodable).
+            status = status_name(response.status or pb.INTERNAL)
+            raise ServerError(status, response.error_message, query_name)
+        status = status_name(response.localize.status)
+        if status not in RESULT_STATUSES:
+            raise ServerError(status, response.localize.error_message, query_name)
+        return LocalizationResult.from_wire(response.localize, query_name)
+
+    def health(self) -> Health:
+        """The server's health, answered at once even when every worker is busy."""
+        response = self._call_kind("health")
+        return Health.from_wire(response.health)
+
+    def info(self) -> ServerInfo:
+        """The served map's description and the server's limits."""
+        response = self._call_kind("info")
+        return ServerInfo.from_wire(response.info, response.server_version)
+
+    def _call_kind(self, kind: str) -> pb.Response:
+        request = pb.Request()
+        getattr(request, kind).SetInParent()
+        response = self.call(request)
+        if not response.HasField(kind):
+            if response.status not in (pb.STATUS_UNSPECIFIED, pb.OK):
+                raise ServerError(status_name(response.status), response.error_message)
+            raise ProtocolError(f"{self.options.endpoint}: the reply to {kind} has no {kind}")
+        return response
+
+    def localize_batch(
+        self,
+        queries: "QueryInput",
+        features_h5: Union[str, os.PathLike],
+        out: Union[str, os.PathLike],
+        inflight: int = 16,
+        *,
+        descriptor_dtype: Optional[np.dtype] = None,
+    ) -> "BatchSummary":
+        """Localizes a query list and writes the submission `hscloc localize` writes.
+
+        Args:
+            queries: an Aachen query list (NAME MODEL WIDTH HEIGHT PARAMS... per line), or a
+                sequence of such lists or of (name, camera) pairs.
+            features_h5: hloc features with a group per query name.
+            out: the submission, NAME QW QX QY QZ TX TY TZ per query, in query order, with the
+                image's basename; failures (status and message) go to `<out>.failures.txt`.
+            inflight: requests in flight, one connection each.
+            descriptor_dtype: None sends the descriptors as stored; np.float16 halves the bytes.
+
+        Returns:
+            The counts, as BatchSummary.
+
+        Raises:
+            ValueError: a malformed list, a query without features, a bad argument.
+            ServerTimeoutError: the server does not answer; the batch stops.
+        """
+        from .batch import localize_batch
+
+        return localize_batch(lambda: Client.from_options(self.options), queries, features_h5,
+                              out, inflight, descriptor_dtype=descriptor_dtype)
+
