@@ -137,6 +137,11 @@ TORCH_MODULE(HscNet);
 // rows[i] and falls under child groups[i] of that row's parent. CPU int64 tensors [T].
 struct FlatCandidates {
   torch::Tensor ranks, rows, groups;
+  // Training only: each row's observed point (leaf rank) and the child it falls under, [R]. The
+  // true child then scores that point alone, so that every level is pulled towards the point
+  // itself rather than towards all the points of its child (which an untrained level cannot
+  // tell apart); the other children still pool all their candidates.
+  torch::Tensor true_ranks, true_groups;
 };
 // The candidates of rows [begin, end): row r pools over the points under parent_nodes[r] that
 // slot slots[r] observes (PointCandidates::Under); rows whose parent is < 0 get none. Row ids in

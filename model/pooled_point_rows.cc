@@ -86,6 +86,12 @@ torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Ten
                  .masked_fill(best.isneginf(), -std::numeric_limits<float>::infinity());
   }
   logits = logits.view({num_rows, branching});
+  if (candidates.true_ranks.defined()) {
+    const torch::Tensor true_scores =
+        (point_rows.index_select(0, candidates.true_ranks.to(device)) * projected).sum(1);
+    logits =
+        logits.scatter(1, candidates.true_groups.to(device).unsqueeze(1), true_scores.unsqueeze(1));
+  }
   // A row without any candidate keeps finite logits, as a path that left the tree does.
   const torch::Tensor empty = logits.isneginf().all(1, /*keepdim=*/true);
   return logits.masked_fill(empty, 0.0f);

@@ -82,6 +82,16 @@ TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
   EXPECT_EQ(max_logits[1][3].item<float>(), lowest);
   EXPECT_TRUE(sum_logits[2].eq(0).all().item<bool>()) << "a row without candidates stays finite";
   EXPECT_TRUE(max_logits[2].eq(0).all().item<bool>());
+
+  // Training: the true child scores the observed point alone, the other children pool.
+  FlatCandidates training = candidates;
+  training.true_ranks = torch::tensor({7, 2, 3}, torch::kInt64);
+  training.true_groups = torch::tensor({1, 0, 2}, torch::kInt64);
+  const torch::Tensor trained =
+      PooledPointLogits(projected, table, training, branching, Pooling::kLogSumExp);
+  EXPECT_NEAR(trained[0][1].item<float>(), s7, 1e-5);
+  EXPECT_NEAR(trained[0][4].item<float>(), score(0, 5), 1e-5);
+  EXPECT_NEAR(trained[2][2].item<float>(), score(2, 3), 1e-5);
 }
 
 TEST(PooledPointLogitsTest, TrainingGradientReachesOnlyTheCandidatesRows) {

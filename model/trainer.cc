@@ -39,6 +39,39 @@ void KeepFreedMemoryForReuse() {
   mallopt(M_TOP_PAD, 64 << 20);
 }
 
+// Pooled point rows start from the data: the row of point p is the unit vector along A x_p, the
+// sum over p's training observations x (unit descriptors) of a fixed Gaussian projection A
+// (r x D). Every level then starts as a nearest-neighbour matcher among the candidates in that
+// projected space and need only learn to map a descriptor near A x, a smooth function of it;
+// from random rows it must memorize which row is whose, which took far longer than the budget
+// at city scale (docs/decisions.md).
+void InitializePointRowsFromDescriptors(const Scene& scene, const std::vector<uint32_t>& training,
+                                        const PointCandidates& candidates,
+                                        torch::Tensor& point_rows) {
+  torch::NoGradGuard no_grad;
+  const int64_t dim = scene.Dimension();
+  const int64_t rows_dim = point_rows.size(1) - 1;
+  const torch::Tensor projection = torch::randn({dim, rows_dim});
+  torch::Tensor sums = torch::zeros({point_rows.size(0), rows_dim});
+  constexpr size_t kBlock = 1 << 15;
+  for (size_t begin = 0; begin < training.size(); begin += kBlock) {
+    const size_t end = std::min(training.size(), begin + kBlock);
+    std::vector<int64_t> observations(training.begin() + begin, training.begin() + end);
+    std::vector<int64_t> ranks;
+    for (const int64_t observation : observations) {
+      ranks.push_back(candidates.RankOfPoint(scene.observation_point_indices[observation]));
+    }
+    const torch::Tensor all =
+        torch::from_blob(const_cast<float*>(scene.observation_descriptors.data()),
+                         {static_cast<int64_t>(scene.NumObservations()), dim}, torch::kFloat32);
+    const torch::Tensor block =
+        NormalizeRows(all.index_select(0, torch::tensor(observations, torch::kInt64)));
+    sums.index_add_(0, torch::tensor(ranks, torch::kInt64), block.mm(projection));
+  }
+  point_rows.narrow(1, 0, rows_dim).copy_(NormalizeRows(sums).to(point_rows.device()));
+  point_rows.select(1, rows_dim).zero_();
+}
+
 NetworkOptions TrainedNetworkOptions(const TrainerOptions& options) {
   NetworkOptions network = options.network;
   network.masked_decoding = options.visibility_softmax || network.pooled_point_rows;
@@ -109,7 +142,8 @@ class Trainer {
   const torch::Device device_;
   const NetworkShape shape_;
   const int levels_;
-  SampleOrder order_;  // the training observations
+  const std::vector<uint32_t> training_;  // the training observations
+  SampleOrder order_;                     // and the order the iterations take them in
   TrainingBudget budget_;
   TrainingState state_;
   std::optional<Network> network_;
@@ -141,6 +175,7 @@ Trainer::Trainer(const Scene& scene, const LabelTree& tree, const TrainerOptions
       shape_(NetworkShape::ForTree(static_cast<int>(scene.Dimension()), tree,
                                    static_cast<int>(scene.NumImages()))),
       levels_(shape_.levels),
+      training_(training),
       order_(std::move(training), options.seed) {
   budget_ = BudgetOf(options, order_.size());
   std::optional<CheckpointReader> checkpoint;
@@ -152,6 +187,9 @@ Trainer::Trainer(const Scene& scene, const LabelTree& tree, const TrainerOptions
   CreateOrRestoreNetwork(resume_from);
   CreateOptimizers(resume_from);
   PrepareVisibilityAndCheckSample();
+  if (point_candidates_ != nullptr && resume_from == nullptr) {
+    InitializePointRowsFromDescriptors(scene_, training_, *point_candidates_, module_->point_rows);
+  }
 }
 
 void Trainer::CreateOrRestoreNetwork(CheckpointReader* checkpoint) {

@@ -23,6 +23,7 @@ struct BatchRows {
   torch::Tensor images;            // [B]
   torch::Tensor labels;            // [B, levels]
   std::vector<int> source_images;  // the observations' images, before image dropout
+  std::vector<uint32_t> points;    // the observed points
 };
 
 BatchRows DrawRows(const BatchContext& context, SampleOrder& order, int64_t iteration) {
@@ -37,7 +38,8 @@ BatchRows DrawRows(const BatchContext& context, SampleOrder& order, int64_t iter
     observations[row] = order.At(static_cast<uint64_t>(iteration * size + row));
   }
   BatchRows rows{torch::empty({size, dim}, torch::kFloat32), torch::empty({size}, torch::kInt64),
-                 torch::empty({size, levels}, torch::kInt64), std::vector<int>(size)};
+                 torch::empty({size, levels}, torch::kInt64), std::vector<int>(size),
+                 std::vector<uint32_t>(size)};
   float* descriptor_data = rows.descriptors.data_ptr<float>();
   int64_t* image_data = rows.images.data_ptr<int64_t>();
   int64_t* label_data = rows.labels.data_ptr<int64_t>();
@@ -61,6 +63,7 @@ BatchRows DrawRows(const BatchContext& context, SampleOrder& order, int64_t iter
       }
       const bool drop_image = options.image_dropout > 0 && random.Bernoulli(options.image_dropout);
       rows.source_images[row] = static_cast<int>(scene.observation_image_indices[observation]);
+      rows.points[row] = scene.observation_point_indices[observation];
       image_data[row] = drop_image ? no_image : scene.observation_image_indices[observation];
       const LabelTree::Label* path =
           tree.LabelsOfPoint(scene.observation_point_indices[observation]);
@@ -227,6 +230,12 @@ Batch MakeBatch(const BatchContext& context, SampleOrder& order, int64_t iterati
       }
       candidates =
           GatherCandidates(*context.point_candidates, slots.data(), node.data(), 0, size, level);
+      std::vector<int64_t> true_ranks(size);
+      for (int64_t row = 0; row < size; ++row) {
+        true_ranks[row] = context.point_candidates->RankOfPoint(drawn.points[row]);
+      }
+      candidates.true_ranks = torch::tensor(true_ranks, torch::kInt64);
+      candidates.true_groups = drawn.labels.select(1, level).clone();
     } else if (tree.LevelHasChoice(level) && context.node_output && context.masks != nullptr) {
       // Only the candidates are gathered: the children the image sees (a few of up to
       // `branching`). A row without an image ranges over all children, sampled down to as many as
