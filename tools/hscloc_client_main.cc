@@ -9,7 +9,7 @@
 
 #include "client/batch_runner.h"
 #include "client/localization_client.h"
-#include "features/feature_extraction.h"
+#include "features/sift_extractor.h"
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
 #include "util/timer.h"
@@ -116,10 +116,9 @@ int main(int argc, char** argv) {
       const wire::Camera wire_camera = ParseCamera(*camera);
       wire::LocalizeRequest request;
       if (!image->empty()) {
-        const ExtractedFeatures extracted = ExtractSift(*image);
-        request =
-            MakeLocalizeRequest(name->empty() ? *image : *name, wire_camera, extracted.keypoints_xy,
-                                extracted.descriptors, 128, common.float16);
+        const ExtractedFeatures extracted = SiftExtractor({}).Extract(*image);
+        request = RequestFromFeatures(name->empty() ? *image : *name, wire_camera,
+                                      extracted.features, common.float16);
       } else if (!features->empty() && !name->empty()) {
         request = RequestFromFeatures(*name, wire_camera, OpenFeatureReader(*features)->Read(*name),
                                       common.float16);
