@@ -192,6 +192,22 @@ TEST(ClientCliTest, GlobalOptionsWorkOnEitherSideOfTheSubcommand) {
   EXPECT_THAT(ReadText(log), HasSubstr("--no-such-option"));
 }
 
+TEST(ClientCliTest, QueryWithABadXFeatModelNamesIt) {
+  HSCLOC_REQUIRE_REAL_DATA(lund, "lund/images");
+  testing::TempDir temp;
+  const fs::path model = temp / "broken.onnx";
+  std::ofstream(model) << "not a model";
+  const fs::path log = temp / "query.log";
+  EXPECT_EQ(testing::RunCommand(
+                fmt::format("{} query --image {} --feature xfeat --xfeat-model {} --camera "
+                            "'PINHOLE 640 480 500 500 320 240' --server tcp://127.0.0.1:1",
+                            HSCLOC_CLIENT_BINARY, (lund / "01.jpg").string(), model.string()),
+                log.string()),
+            2)
+      << ReadText(log);
+  EXPECT_THAT(ReadText(log), HasSubstr(model.string() + " is not a valid ONNX model"));
+}
+
 TEST(ExtractCliTest, WritesHlocFeaturesAndResumes) {
   HSCLOC_REQUIRE_REAL_DATA(lund, "lund/images");
   HSCLOC_REQUIRE_REAL_DATA(weights, "weights/xfeat");
