@@ -1,5 +1,6 @@
 #include "features/xfeat_extractor.h"
 
+#include <algorithm>
 #include <cstdlib>
 #include <opencv2/dnn.hpp>
 #include <opencv2/imgcodecs.hpp>
