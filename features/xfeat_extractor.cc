@@ -28,6 +28,48 @@ void CheckShape(const cv::Mat& blob, const std::vector<int>& expected, const std
   }
 }
 
+// The photo scaled into the top-left corner of the zero-padded square input, as a 1x3xSxS blob.
+cv::Mat NetworkInput(const cv::Mat& image, const Letterbox& letterbox) {
+  cv::Mat input = cv::Mat::zeros(kInputSize, kInputSize, image.type());
+  const cv::Size scaled(letterbox.scaled_width, letterbox.scaled_height);
+  cv::resize(image, input(cv::Rect(cv::Point(0, 0), scaled)), scaled, 0, 0,
+             scaled.width < image.cols ? cv::INTER_AREA : cv::INTER_LINEAR);
+  return cv::dnn::blobFromImage(input, 1.0 / 255, cv::Size(), cv::Scalar(), /*swapRB=*/true);
+}
+
+// Keypoint probability x reliability (upsampled) per input pixel, zero over the padding.
+ScoreMap KeypointScores(const cv::Mat& logits, const cv::Mat& reliability_cells,
+                        const Letterbox& letterbox) {
+  ScoreMap scores = KeypointHeatmap(logits.ptr<float>(), kCells, kCells);
+  cv::Mat reliability;
+  cv::resize(reliability_cells.reshape(1, std::vector<int>{kCells, kCells}), reliability,
+             cv::Size(kInputSize, kInputSize), 0, 0, cv::INTER_LINEAR);
+  scores.array() *=
+      Eigen::Map<const ScoreMap>(reliability.ptr<float>(), kInputSize, kInputSize).array();
+  scores.rightCols(kInputSize - letterbox.scaled_width).setZero();
+  scores.bottomRows(kInputSize - letterbox.scaled_height).setZero();
+  return scores;
+}
+
+// Keypoints in the photo's pixels, their scores, and descriptors sampled at them.
+ImageFeatures FeaturesAtPeaks(const std::vector<Peak>& peaks, const cv::Mat& descriptor_map,
+                              const Letterbox& letterbox) {
+  const auto count = static_cast<Eigen::Index>(peaks.size());
+  ImageFeatures features;
+  KeypointMatrix in_cells(count, 2);
+  features.keypoints.resize(count, 2);
+  features.scores.resize(count);
+  for (Eigen::Index i = 0; i < count; ++i) {
+    const Eigen::Vector2f in_input(peaks[i].x + 0.5f, peaks[i].y + 0.5f);
+    in_cells.row(i) = in_input.transpose() / kCellSize;
+    features.keypoints.row(i) = letterbox.ToPhoto(in_input).transpose();
+    features.scores(i) = peaks[i].score;
+  }
+  features.descriptors =
+      SampleDescriptors(descriptor_map.ptr<float>(), kDimension, kCells, kCells, in_cells);
+  return features;
+}
+
 }  // namespace
 
 std::string DefaultXFeatModelPath() {
@@ -89,12 +131,7 @@ ExtractedFeatures XFeatExtractor::Extract(const std::filesystem::path& image_pat
   const cv::Mat image = cv::imread(image_path.string(), cv::IMREAD_COLOR);
   if (image.empty()) ThrowInvalidArgument("cannot read the image {}", image_path.string());
   const Letterbox letterbox(image.cols, image.rows, kInputSize);
-  cv::Mat input = cv::Mat::zeros(kInputSize, kInputSize, image.type());
-  cv::resize(image, input(cv::Rect(0, 0, letterbox.scaled_width, letterbox.scaled_height)),
-             cv::Size(letterbox.scaled_width, letterbox.scaled_height), 0, 0,
-             letterbox.scaled_width < image.cols ? cv::INTER_AREA : cv::INTER_LINEAR);
-  network_->net.setInput(
-      cv::dnn::blobFromImage(input, 1.0 / 255, cv::Size(), cv::Scalar(), /*swapRB=*/true));
+  network_->net.setInput(NetworkInput(image, letterbox));
   std::vector<cv::Mat> outputs;
   try {
     network_->net.forward(outputs, kOutputNames);
@@ -106,38 +143,17 @@ ExtractedFeatures XFeatExtractor::Extract(const std::filesystem::path& image_pat
   CheckShape(outputs[1], {1, 65, kCells, kCells}, kOutputNames[1], options_.model_path);
   CheckShape(outputs[2], {1, 1, kCells, kCells}, kOutputNames[2], options_.model_path);
 
-  ScoreMap scores = KeypointHeatmap(outputs[1].ptr<float>(), kCells, kCells);
-  cv::Mat reliability;
-  cv::resize(cv::Mat(kCells, kCells, CV_32F, outputs[2].ptr<float>()), reliability,
-             cv::Size(kInputSize, kInputSize), 0, 0, cv::INTER_LINEAR);
-  scores.array() *=
-      Eigen::Map<const ScoreMap>(reliability.ptr<float>(), kInputSize, kInputSize).array();
-  // The padding is no part of the photo.
-  scores.rightCols(kInputSize - letterbox.scaled_width).setZero();
-  scores.bottomRows(kInputSize - letterbox.scaled_height).setZero();
   const std::vector<Peak> peaks = NonMaximumSuppression(
-      scores, options_.nms_radius_px, options_.score_threshold, options_.max_keypoints);
+      KeypointScores(outputs[1], outputs[2], letterbox), options_.nms_radius_px,
+      options_.score_threshold, options_.max_keypoints);
   if (peaks.empty()) {
     ThrowInvalidArgument("XFeat found no keypoint (score > {}) in the image {}",
                          options_.score_threshold, image_path.string());
   }
-
   ExtractedFeatures extracted;
   extracted.width = image.cols;
   extracted.height = image.rows;
-  ImageFeatures& features = extracted.features;
-  const auto count = static_cast<Eigen::Index>(peaks.size());
-  KeypointMatrix in_cells(count, 2);
-  features.keypoints.resize(count, 2);
-  features.scores.resize(count);
-  for (Eigen::Index i = 0; i < count; ++i) {
-    const Eigen::Vector2f in_input(peaks[i].x + 0.5f, peaks[i].y + 0.5f);
-    in_cells.row(i) = in_input.transpose() / kCellSize;
-    features.keypoints.row(i) = letterbox.ToPhoto(in_input).transpose();
-    features.scores(i) = peaks[i].score;
-  }
-  features.descriptors =
-      SampleDescriptors(outputs[0].ptr<float>(), kDimension, kCells, kCells, in_cells);
+  extracted.features = FeaturesAtPeaks(peaks, outputs[0], letterbox);
   return extracted;
 }
 
