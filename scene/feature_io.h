@@ -46,14 +46,17 @@ std::unique_ptr<FeatureReader> OpenColmapDatabaseFeatures(const std::filesystem:
 std::unique_ptr<FeatureReader> OpenH5Features(const std::filesystem::path& path);
 
 enum class H5FloatPrecision { kFloat16, kFloat32 };
+// kCreate truncates the file; kAppend adds images to an existing file (created when missing).
+enum class H5WriteMode { kCreate, kAppend };
 
 // Writes an hloc feature file image by image (streaming: nothing is held back in memory).
-// The file is created (truncated); Close() or the destructor flushes it, and only Close() reports
-// a failure to. `precision` applies to descriptors and scores; keypoints are always float32
-// (float16 spacing is 1 px from 1024 px on), image_size int64.
+// Close() or the destructor flushes it, and only Close() reports a failure to. `precision` applies
+// to descriptors and scores; keypoints are always float32 (float16 spacing is 1 px from 1024 px
+// on), image_size int64.
 class H5FeatureWriter {
  public:
-  H5FeatureWriter(const std::filesystem::path& path, H5FloatPrecision precision);
+  H5FeatureWriter(const std::filesystem::path& path, H5FloatPrecision precision,
+                  H5WriteMode mode = H5WriteMode::kCreate);
   ~H5FeatureWriter();
   H5FeatureWriter(const H5FeatureWriter&) = delete;
   H5FeatureWriter& operator=(const H5FeatureWriter&) = delete;
@@ -62,6 +65,8 @@ class H5FeatureWriter {
   // features are inconsistent (descriptor or score count, non-finite values).
   void Write(const std::string& image_name, const ImageFeatures& features, int64_t width,
              int64_t height);
+  // Whether the file holds the image (written here, or before when appending).
+  bool HasImage(const std::string& image_name) const;
   void Close();
 
  private:

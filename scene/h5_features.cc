@@ -343,6 +343,12 @@ Handle OpenForReading(const std::filesystem::path& path) {
                        "cannot open (not an HDF5 file, or truncated)");
 }
 
+Handle OpenForAppending(const std::filesystem::path& path) {
+  SilenceHdf5Errors();
+  return CheckedHandle(H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT), H5Fclose, path,
+                       "cannot open for appending (not an HDF5 file, truncated, or read-only)");
+}
+
 Handle CreateForWriting(const std::filesystem::path& path) {
   SilenceHdf5Errors();
   // The file creation properties reach the root group, which must not carry a time either.
@@ -451,10 +457,18 @@ struct H5FeatureWriter::Impl {
   std::set<std::string> written;
 };
 
-H5FeatureWriter::H5FeatureWriter(const std::filesystem::path& path, H5FloatPrecision precision)
+H5FeatureWriter::H5FeatureWriter(const std::filesystem::path& path, H5FloatPrecision precision,
+                                 H5WriteMode mode)
     : impl_(std::make_unique<Impl>()) {
   impl_->path = path;
-  impl_->file = CreateForWriting(path);
+  if (mode == H5WriteMode::kAppend && std::filesystem::exists(path)) {
+    impl_->file = OpenForAppending(path);
+    for (std::string& name : FindGroupsWith(impl_->file.get(), "", "keypoints", path)) {
+      impl_->written.insert(std::move(name));
+    }
+  } else {
+    impl_->file = CreateForWriting(path);
+  }
   impl_->encoding = std::make_unique<FloatEncoding>(precision, path);
 }
 
@@ -515,6 +529,10 @@ void H5FeatureWriter::Write(const std::string& image_name, const ImageFeatures& 
   WriteDataset(group.get(), "image_size", H5T_STD_I64LE, H5T_NATIVE_INT64, {2}, image_size, path,
                where);
   impl_->written.insert(image_name);
+}
+
+bool H5FeatureWriter::HasImage(const std::string& image_name) const {
+  return impl_->written.count(image_name) > 0;
 }
 
 void H5FeatureWriter::Close() {

@@ -302,6 +302,35 @@ TEST(H5Features, WriterRejectsDuplicatesAndInconsistentFeatures) {
       HasSubstr("d//e.jpg"));
 }
 
+TEST(H5Features, AppendingKeepsTheImagesWrittenBefore) {
+  testing::TempDir dir;
+  std::mt19937 random(3);
+  const ImageFeatures first = RandomFeatures(20, 16, true, &random);
+  const ImageFeatures second = RandomFeatures(30, 16, true, &random);
+  {
+    H5FeatureWriter writer(dir / "f.h5", H5FloatPrecision::kFloat32, H5WriteMode::kAppend);
+    EXPECT_FALSE(writer.HasImage("db/a.jpg"));
+    writer.Write("db/a.jpg", first, 640, 480);
+    writer.Close();
+  }
+  H5FeatureWriter writer(dir / "f.h5", H5FloatPrecision::kFloat32, H5WriteMode::kAppend);
+  EXPECT_TRUE(writer.HasImage("db/a.jpg"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { writer.Write("db/a.jpg", first, 640, 480); }),
+              HasSubstr("written before"));
+  writer.Write("db/b.jpg", second, 640, 480);
+  writer.Close();
+  const auto reader = OpenH5Features(dir / "f.h5");
+  EXPECT_THAT(reader->ImageNames(), ::testing::ElementsAre("db/a.jpg", "db/b.jpg"));
+  EXPECT_THAT(reader->Read("db/a.jpg").descriptors, MatrixEq(first.descriptors));
+  EXPECT_THAT(reader->Read("db/b.jpg").keypoints, MatrixEq(second.keypoints));
+
+  std::ofstream(dir / "not.h5") << "not HDF5";
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
+                H5FeatureWriter(dir / "not.h5", H5FloatPrecision::kFloat32, H5WriteMode::kAppend);
+              }),
+              HasSubstr((dir / "not.h5").string()));
+}
+
 TEST(H5Features, NanDescriptorIsReportedWithFileAndImage) {
   testing::TempDir dir;
   {

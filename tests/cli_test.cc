@@ -1,5 +1,6 @@
 // The command-line tool end to end on the trained small city of the test fixture: localize a
-// query list offline, resume an interrupted run, evaluate the submission.
+// query list offline, resume an interrupted run, evaluate the submission; feature extraction from
+// real photos.
 #include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -13,6 +14,7 @@
 #include <sstream>
 #include <thread>
 
+#include "scene/feature_io.h"
 #include "scene/query_io.h"
 #include "util/testing.h"
 
@@ -188,6 +190,55 @@ TEST(ClientCliTest, GlobalOptionsWorkOnEitherSideOfTheSubcommand) {
                                 log.string()),
             0);
   EXPECT_THAT(ReadText(log), HasSubstr("--no-such-option"));
+}
+
+TEST(ClientCliTest, QueryWithABadXFeatModelNamesIt) {
+  HSCLOC_REQUIRE_REAL_DATA(lund, "lund/images");
+  testing::TempDir temp;
+  const fs::path model = temp / "broken.onnx";
+  std::ofstream(model) << "not a model";
+  const fs::path log = temp / "query.log";
+  EXPECT_EQ(testing::RunCommand(
+                fmt::format("{} query --image {} --feature xfeat --xfeat-model {} --camera "
+                            "'PINHOLE 640 480 500 500 320 240' --server tcp://127.0.0.1:1",
+                            HSCLOC_CLIENT_BINARY, (lund / "01.jpg").string(), model.string()),
+                log.string()),
+            2)
+      << ReadText(log);
+  EXPECT_THAT(ReadText(log), HasSubstr(model.string() + " is not a valid ONNX model"));
+}
+
+TEST(ExtractCliTest, WritesHlocFeaturesAndResumes) {
+  HSCLOC_REQUIRE_REAL_DATA(lund, "lund/images");
+  HSCLOC_REQUIRE_REAL_DATA(weights, "weights/xfeat");
+  testing::TempDir temp;
+  const fs::path list = temp / "list.txt";
+  std::ofstream(list) << "01.jpg\n02.jpg\n";
+  const fs::path out = temp / "features.h5";
+  const std::string extract =
+      fmt::format("extract --images {} --list {} --feature xfeat --out {} --xfeat-model {}",
+                  lund.string(), list.string(), out.string(), (weights / "xfeat.onnx").string());
+  ASSERT_EQ(Hscloc(extract, temp / "first.log"), 0) << ReadText(temp / "first.log");
+  EXPECT_THAT(ReadText(temp / "first.log"), HasSubstr("2 extracted"));
+  {
+    // Closed before the second run: HDF5 locks an open file.
+    const auto reader = OpenFeatureReader(out);
+    EXPECT_THAT(reader->ImageNames(), ::testing::ElementsAre("01.jpg", "02.jpg"));
+    const ImageFeatures features = reader->Read("01.jpg");
+    EXPECT_EQ(features.NumKeypoints(), 2048);
+    EXPECT_EQ(features.Dimension(), 64);
+    EXPECT_EQ(features.scores.size(), 2048);
+  }
+
+  ASSERT_EQ(Hscloc(extract, temp / "second.log"), 0) << ReadText(temp / "second.log");
+  EXPECT_THAT(ReadText(temp / "second.log"), HasSubstr("0 extracted"));
+  EXPECT_THAT(ReadText(temp / "second.log"), HasSubstr("2 already there"));
+
+  EXPECT_EQ(
+      Hscloc(fmt::format("extract --images {} --out {}", (temp / "nowhere").string(), out.string()),
+             temp / "bad.log"),
+      2);
+  EXPECT_THAT(ReadText(temp / "bad.log"), HasSubstr("nowhere does not exist"));
 }
 
 TEST_F(CliTest, BadInputsFailWithAClearMessage) {

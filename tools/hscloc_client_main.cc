@@ -9,7 +9,7 @@
 
 #include "client/batch_runner.h"
 #include "client/localization_client.h"
-#include "features/feature_extraction.h"
+#include "features/feature_extractor.h"
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
 #include "util/timer.h"
@@ -104,8 +104,15 @@ int main(int argc, char** argv) {
   auto features = std::make_shared<std::string>();
   auto name = std::make_shared<std::string>();
   auto camera = std::make_shared<std::string>();
-  query->add_option("--image", *image, "Photo: SIFT features are extracted here")
+  query->add_option("--image", *image, "Photo: its features are extracted here (--feature)")
       ->check(CLI::ExistingFile);
+  auto feature = std::make_shared<std::string>("sift");
+  auto extractor_options = std::make_shared<FeatureExtractorOptions>();
+  query->add_option("--feature", *feature, "Features of --image: sift or xfeat (as the map's)")
+      ->check(CLI::IsMember({"sift", "xfeat"}))
+      ->capture_default_str();
+  query->add_option("--xfeat-model", extractor_options->xfeat.model_path, "XFeat ONNX model")
+      ->capture_default_str();
   query->add_option("--features", *features, "Features file (.h5 or database.db)")
       ->check(CLI::ExistingFile);
   query->add_option("--name", *name, "Image name in --features (default: the photo's name)");
@@ -116,10 +123,11 @@ int main(int argc, char** argv) {
       const wire::Camera wire_camera = ParseCamera(*camera);
       wire::LocalizeRequest request;
       if (!image->empty()) {
-        const ExtractedFeatures extracted = ExtractSift(*image);
-        request =
-            MakeLocalizeRequest(name->empty() ? *image : *name, wire_camera, extracted.keypoints_xy,
-                                extracted.descriptors, 128, common.float16);
+        extractor_options->type = ParseFeatureType(*feature);
+        const ExtractedFeatures extracted =
+            CreateFeatureExtractor(*extractor_options)->Extract(*image);
+        request = RequestFromFeatures(name->empty() ? *image : *name, wire_camera,
+                                      extracted.features, common.float16);
       } else if (!features->empty() && !name->empty()) {
         request = RequestFromFeatures(*name, wire_camera, OpenFeatureReader(*features)->Read(*name),
                                       common.float16);
