@@ -104,6 +104,7 @@ struct NetworkOptions {
   // level is then a classifier with many prototypes per class (Qian et al., "SoftTriple Loss",
   // ICCV 2019), so a coarse cluster of a thousand unrelated descriptors needs no single row that
   // fits them all; off: each node has its own row (docs/decisions.md, "Training at city scale").
+  // The trainer starts the rows from the points' descriptors.
   bool pooled_point_rows = false;
   // Trained with the visibility softmax: decode with the visibility mask (the Localizer does so on
   // its own for such a network).

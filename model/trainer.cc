@@ -507,9 +507,10 @@ std::string TrainingResult::LogCsv() const {
   return csv;
 }
 
-double DefaultEpochs(size_t num_training_observations) {
+double DefaultEpochs(size_t num_training_observations, const NetworkOptions& network) {
   // Small maps need many passes (few views per point); large ones fewer, each pass being longer.
   const double n = std::max<double>(1, static_cast<double>(num_training_observations));
+  if (network.pooled_point_rows) return std::clamp(3.0 * std::sqrt(1e6 / n), 1.5, 400.0);
   return std::clamp(12.0 * std::sqrt(1e6 / n), 10.0, 400.0);
 }
 
@@ -527,6 +528,7 @@ NetworkOptions DefaultNetworkOptions(size_t num_points) {
   int rows = 64;
   while (rows > 16 && static_cast<double>(num_points) * (rows + 1) > 6e6) rows /= 2;
   options.node_output_dim = rows;
+  options.pooled_point_rows = true;
   return options;
 }
 

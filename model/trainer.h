@@ -63,8 +63,9 @@ struct TrainerOptions {
   // Each level's softmax only over the children whose subtree holds a point the sample's image
   // observes (what masked decoding chooses among); samples without an image see every child.
   // Worth 8 points of held-out accuracy on the city when decoded with the mask, but a network so
-  // trained must be decoded with it (the localizer's --masked-decoding): plain decoding loses most
-  // of its accuracy (docs/decisions.md). Off by default while the localizer decodes plainly.
+  // trained must be decoded with it: plain decoding loses most of its accuracy
+  // (docs/decisions.md). The network records it (NetworkOptions::masked_decoding) and the
+  // Localizer follows. Pooled point rows always train this way, whatever this says.
   bool visibility_softmax = false;
   // Node output rows updated row-wise (lazy Adam on the rows a batch touches) rather than by
   // dense Adam over the whole table every step.
@@ -137,12 +138,13 @@ struct TrainingResult {
 };
 
 // The epochs an automatic budget trains for a map of this many training observations: fewer
-// passes for larger maps, whose batches hold more distinct points (docs/decisions.md).
-double DefaultEpochs(size_t num_training_observations);
+// passes for larger maps, whose batches hold more distinct points, and far fewer for pooled point
+// rows, which start from the data (docs/decisions.md).
+double DefaultEpochs(size_t num_training_observations, const NetworkOptions& network);
 // Maps with fewer points keep the paper's shared output layer (node_output_dim = 0).
 inline constexpr size_t kMinPointsForNodeOutputRows = 10000;
-// Widths for a map of this many points: per-node output rows from kMinPointsForNodeOutputRows
-// points on, narrowing on large maps so that the bundle stays small.
+// Widths for a map of this many points: from kMinPointsForNodeOutputRows points on, pooled point
+// rows (docs/decisions.md), narrowing on large maps so that the bundle stays small.
 NetworkOptions DefaultNetworkOptions(size_t num_points);
 
 // Whether observation `index` belongs to the held-out fraction (a hash of index and seed).

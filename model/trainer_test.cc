@@ -124,7 +124,11 @@ TEST(TrainerOptionsTest, ChecksNameTheField) {
   expect_named([](TrainerOptions& o) { o.evaluation_observations = 0; }, "evaluation_observations");
   expect_named([](TrainerOptions& o) { o.network.node_output_dim = -2; }, "node_output_dim");
   // Larger maps get fewer passes, and narrower node rows.
-  EXPECT_GT(DefaultEpochs(20000), DefaultEpochs(2000000));
+  const NetworkOptions pooled = DefaultNetworkOptions(kMinPointsForNodeOutputRows);
+  EXPECT_TRUE(pooled.pooled_point_rows);
+  EXPECT_FALSE(DefaultNetworkOptions(kMinPointsForNodeOutputRows - 1).pooled_point_rows);
+  EXPECT_GT(DefaultEpochs(20000, NetworkOptions{}), DefaultEpochs(2000000, NetworkOptions{}));
+  EXPECT_LT(DefaultEpochs(600000, pooled), DefaultEpochs(600000, NetworkOptions{}));
   EXPECT_GE(DefaultNetworkOptions(100000).node_output_dim,
             DefaultNetworkOptions(2000000).node_output_dim);
   // Small maps keep the shared output layer; from the threshold on, every node has its row.

@@ -22,7 +22,7 @@ TrainingBudget BudgetOf(const TrainerOptions& options, size_t num_training_obser
   const double num_training = static_cast<double>(num_training_observations);
   double epochs = options.epochs;
   if (options.max_iterations == 0 && options.max_minutes == 0 && epochs == 0) {
-    epochs = DefaultEpochs(num_training_observations);
+    epochs = DefaultEpochs(num_training_observations, options.network);
   }
   int64_t iterations = options.max_iterations;
   if (epochs > 0) {

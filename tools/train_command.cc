@@ -122,7 +122,7 @@ int RunTrain(TrainArguments& arguments) {
   if (arguments.schedule == "one-cycle") options.schedule = LearningRateSchedule::kOneCycle;
   if (options.max_iterations == 0 && options.max_minutes == 0 && options.epochs == 0) {
     std::cerr << fmt::format("no budget given: {:.1f} epochs of the map's observations\n",
-                             DefaultEpochs(map->scene().NumObservations()));
+                             DefaultEpochs(map->scene().NumObservations(), options.network));
   }
 
   if (arguments.eval_only) {
