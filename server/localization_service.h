@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "localization/localizer.h"
+#include "server/reload_coalescer.h"
 #include "server/wire.h"
 
 namespace hscloc {
@@ -49,12 +50,6 @@ struct ServiceOptions {
   std::vector<std::string> curve_allowed_client_keys;
 
   void Check() const;
-};
-
-struct ReloadOutcome {
-  bool success = false;
-  std::string error_message;
-  std::string map_id;
 };
 
 class LocalizationService {
