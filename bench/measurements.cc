@@ -157,6 +157,7 @@ json ServerThroughput(const fs::path& bundle, const std::vector<LocalizationQuer
   }
   ServiceOptions options;
   options.bind = "tcp://127.0.0.1:0";
+  options.admin_bind = "";  // no reloads, no probes in process
   options.workers = ResolveNumThreads(0);
   options.max_queue = 1024;
   LocalizationService service(bundle, options);

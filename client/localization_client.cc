@@ -110,6 +110,13 @@ LocalizationClient::LocalizationClient(const ClientOptions& options)
     throw std::invalid_argument(fmt::format("client: timeout_ms {} and retries {} must be positive",
                                             options_.timeout_ms, options_.retries));
   }
+  if (!options_.curve_secret_key.empty() && options_.curve_public_key.empty()) {
+    char public_key[41];
+    if (zmq_curve_public(public_key, options_.curve_secret_key.c_str()) != 0) {
+      throw std::invalid_argument("client: the CURVE secret key is no Z85 key");
+    }
+    options_.curve_public_key = public_key;
+  }
   if (!options_.curve_server_key.empty() && options_.curve_public_key.empty()) {
     char public_key[41];
     char secret_key[41];
@@ -205,6 +212,14 @@ wire::InfoResponse LocalizationClient::Info() {
   const wire::Response response = Call(std::move(request));
   if (!response.has_info()) throw ClientError("info: " + response.error_message());
   return response.info();
+}
+
+wire::ReloadResponse LocalizationClient::Reload() {
+  wire::Request request;
+  request.mutable_reload();
+  const wire::Response response = Call(std::move(request));
+  if (!response.has_reload()) throw ClientError("reload: " + response.error_message());
+  return response.reload();
 }
 
 }  // namespace hscloc

@@ -20,7 +20,8 @@ struct ClientOptions {
   int timeout_ms = 10000;  // per attempt
   int retries = 2;         // attempts after the first, each on a new socket
   // CURVE: the server's public key turns encryption on; the client's key pair is generated when
-  // left empty (then the server must accept any key).
+  // left empty (then the server must accept any key), its public key derived from the secret one
+  // when only that is given.
   std::string curve_server_key;
   std::string curve_public_key;
   std::string curve_secret_key;
@@ -59,6 +60,9 @@ class LocalizationClient {
   wire::LocalizeResponse Localize(const wire::LocalizeRequest& request);
   wire::HealthResponse Health();
   wire::InfoResponse Info();
+  // Accepted on a server's admin endpoint (or with an admin CURVE key); the reply comes when the
+  // reload is done.
+  wire::ReloadResponse Reload();
 
  private:
   void Connect();

@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # Smoke test of a scaled-out deployment, with the arguments the manifests use (kubernetes/,
-# compose.yaml), as plain processes on loopback: a broker, two workers, a batch client; one worker
-# is killed while the batch runs; every query must be answered; everything stops cleanly.
+# compose.yaml), as plain processes on loopback: a broker, two workers, a batch client, CURVE
+# between all of them (keys from make-keys.sh), each process probed on its own admin endpoint; one
+# worker is killed while the batch runs; every query must be answered; everything stops cleanly.
 #   deploy/smoke.sh BIN_DIR CITY_DIR
 # BIN_DIR holds hscloc and hscloc-client; CITY_DIR holds city/ and a trained map/
 # (tests/make_trained_city.sh).
 set -euo pipefail
 bin=$1 dir=$2
 work=$(mktemp -d)
-front=$((20000 + $$ % 20000)) back=$((front + 1))
+front=$((20000 + $$ % 20000)) back=$((front + 1)) admin=$((front + 2))
 pids=()
 cleanup() {
   for pid in "${pids[@]}"; do kill -9 "$pid" 2>/dev/null || true; done
@@ -16,20 +17,48 @@ cleanup() {
 }
 trap cleanup EXIT
 
+bash "$(dirname "$0")/make-keys.sh" "$work/keys" "$bin/hscloc" > /dev/null
+keys=$work/keys
+
 "$bin/hscloc" serve --broker --bind "tcp://127.0.0.1:$front" --backend "tcp://127.0.0.1:$back" \
+  --admin-bind "tcp://127.0.0.1:$admin" \
+  --curve-secret-key "$keys/broker.key" --curve-allowed-keys "$keys/clients.txt" \
+  --backend-curve-secret-key "$keys/backend.key" --curve-allowed-worker-keys "$keys/workers.txt" \
   > "$work/broker.log" 2>&1 &
 broker=$!
 pids+=("$broker")
 for n in 1 2; do
   "$bin/hscloc" serve --map "$dir/map" --connect "tcp://127.0.0.1:$back" --workers 1 \
+    --admin-bind "tcp://127.0.0.1:$((admin + n))" \
+    --curve-secret-key "$keys/worker.key" --curve-server-key "$keys/backend.pub" \
     > "$work/worker$n.log" 2>&1 &
   pids+=("$!")
 done
 worker1=${pids[1]} worker2=${pids[2]}
 
-client=("$bin/hscloc-client" --server "tcp://127.0.0.1:$front" --timeout-ms 120000 --retries 0)
+# The manifests' probes: each process on its own admin endpoint, until it is ready.
+probe() {
+  local port=$1 tries=600
+  until "$bin/hscloc-client" --server "tcp://127.0.0.1:$port" --timeout-ms 2000 --retries 0 \
+      health > "$work/probe.log" 2>&1; do
+    tries=$((tries - 1))
+    [ "$tries" -gt 0 ] || { cat "$work/probe.log"; echo "smoke: port $port never ready" >&2; exit 1; }
+    sleep 0.1
+  done
+  "$bin/hscloc-client" --server "tcp://127.0.0.1:$port" --timeout-ms 2000 --retries 0 \
+    health --live > /dev/null
+}
+for port in $((admin + 1)) $((admin + 2)) "$admin"; do probe "$port"; done
+
+client=("$bin/hscloc-client" --server "tcp://127.0.0.1:$front" --timeout-ms 120000 --retries 0
+        --curve-server-key "$keys/broker.pub" --curve-secret-key "$keys/client.key")
 "${client[@]}" health > /dev/null
-echo "smoke: broker and workers up"
+echo "smoke: broker and workers up and ready, CURVE on"
+if "$bin/hscloc-client" --server "tcp://127.0.0.1:$front" --timeout-ms 1000 --retries 0 \
+    --curve-server-key "$keys/broker.pub" health > /dev/null 2>&1; then
+  echo "smoke: a client with a key not on the allow-list was answered" >&2
+  exit 1
+fi
 
 queries="$dir/city/queries/day_time_queries_with_intrinsics.txt"
 "${client[@]}" batch --queries "$queries" --features "$dir/city/features.h5" \

@@ -11,8 +11,11 @@
 #include <zmq_addon.hpp>
 
 #include "proto/hscloc.pb.h"
+#include "server/curve_auth.h"
+#include "server/messages.h"
 #include "server/wire.h"
 #include "util/check.h"
+#include "util/timer.h"
 
 namespace hscloc {
 namespace {
@@ -30,27 +33,22 @@ struct Worker {
   Clock::time_point expiry;
 };
 
-void SendFrames(zmq::socket_t& socket, const std::vector<std::string>& frames) {
-  for (size_t i = 0; i < frames.size(); ++i) {
-    socket.send(zmq::buffer(frames[i]),
-                i + 1 < frames.size() ? zmq::send_flags::sndmore : zmq::send_flags::none);
-  }
-}
+constexpr char kClientDomain[] = "clients";
+constexpr char kWorkerDomain[] = "workers";
 
-std::vector<std::string> ReceiveFrames(zmq::socket_t& socket) {
-  std::vector<zmq::message_t> messages;
-  std::vector<std::string> frames;
-  if (!zmq::recv_multipart(socket, std::back_inserter(messages))) return frames;
-  for (const zmq::message_t& message : messages) frames.push_back(message.to_string());
-  return frames;
+double NowSeconds() {
+  static const Timer clock;
+  return clock.ElapsedSeconds();
 }
 
 }  // namespace
 
 struct Broker::State {
   zmq::context_t context{1};
+  std::unique_ptr<CurveAuthenticator> authenticator;
   zmq::socket_t front;
   zmq::socket_t back;
+  zmq::socket_t admin;
 };
 
 void BrokerOptions::Check() const {
@@ -59,26 +57,73 @@ void BrokerOptions::Check() const {
   THROW_CHECK_MSG(heartbeat_interval.count() > 0 && heartbeat_liveness >= 2,
                   "BrokerOptions: heartbeat interval {} ms, liveness {}",
                   heartbeat_interval.count(), heartbeat_liveness);
+  if (!curve_secret_key.empty()) {
+    CheckCurveKey(curve_secret_key, "BrokerOptions.curve_secret_key (--curve-secret-key)");
+  }
+  for (const std::string& key : curve_allowed_client_keys) {
+    CheckCurveKey(key, "BrokerOptions.curve_allowed_client_keys (--curve-allowed-keys)");
+  }
+  THROW_CHECK_MSG(!curve_secret_key.empty() || curve_allowed_client_keys.empty(),
+                  "BrokerOptions.curve_allowed_client_keys (--curve-allowed-keys) need the "
+                  "front's CURVE key (--curve-secret-key)");
+  if (!backend_curve_secret_key.empty()) {
+    CheckCurveKey(backend_curve_secret_key,
+                  "BrokerOptions.backend_curve_secret_key (--backend-curve-secret-key)");
+  }
+  for (const std::string& key : curve_allowed_worker_keys) {
+    CheckCurveKey(key, "BrokerOptions.curve_allowed_worker_keys (--curve-allowed-worker-keys)");
+  }
+  THROW_CHECK_MSG(backend_curve_secret_key.empty() == curve_allowed_worker_keys.empty(),
+                  "BrokerOptions.backend_curve_secret_key and curve_allowed_worker_keys "
+                  "(--backend-curve-secret-key, --curve-allowed-worker-keys) go together: the "
+                  "back admits only the workers whose keys are listed");
 }
 
 Broker::Broker(const BrokerOptions& options) : options_(options) { options_.Check(); }
 
 Broker::~Broker() { Stop(); }
 
-std::pair<std::string, std::string> Broker::Start() {
-  THROW_CHECK_MSG(state_ == nullptr, "Broker: started twice");
-  state_ = std::make_unique<State>();
+void Broker::OpenSockets() {
+  std::vector<CurveDomain> domains;
+  if (!options_.curve_secret_key.empty()) {
+    domains.push_back({kClientDomain, options_.curve_allowed_client_keys, {}});
+  }
+  if (!options_.backend_curve_secret_key.empty()) {
+    domains.push_back({kWorkerDomain, options_.curve_allowed_worker_keys, {}});
+  }
+  // The ZAP handler must be bound before the server sockets authenticate anyone.
+  if (!domains.empty()) {
+    state_->authenticator = std::make_unique<CurveAuthenticator>(state_->context, domains);
+  }
   state_->front = zmq::socket_t(state_->context, zmq::socket_type::router);
   state_->back = zmq::socket_t(state_->context, zmq::socket_type::router);
   state_->front.set(zmq::sockopt::linger, 1000);
   state_->back.set(zmq::sockopt::linger, 0);
-  try {
-    state_->front.bind(options_.front);
-    state_->back.bind(options_.back);
-  } catch (const zmq::error_t& error) {
-    ThrowInvalidArgument("broker: cannot bind {} and {}: {}", options_.front, options_.back,
-                         error.what());
+  if (!options_.curve_secret_key.empty()) {
+    MakeCurveServer(state_->front, options_.curve_secret_key, kClientDomain);
   }
+  if (!options_.backend_curve_secret_key.empty()) {
+    MakeCurveServer(state_->back, options_.backend_curve_secret_key, kWorkerDomain);
+  }
+  BindOrThrow(state_->front, options_.front, "--bind");
+  BindOrThrow(state_->back, options_.back, "--backend");
+  if (options_.admin_bind.empty()) return;
+  state_->admin = zmq::socket_t(state_->context, zmq::socket_type::router);
+  state_->admin.set(zmq::sockopt::linger, 0);
+  BindOrThrow(state_->admin, options_.admin_bind, "--admin-bind");
+  admin_endpoint_ = state_->admin.get(zmq::sockopt::last_endpoint);
+}
+
+std::pair<std::string, std::string> Broker::Start() {
+  THROW_CHECK_MSG(state_ == nullptr, "Broker: started twice");
+  state_ = std::make_unique<State>();
+  try {
+    OpenSockets();
+  } catch (...) {
+    state_.reset();
+    throw;
+  }
+  started_s_ = NowSeconds();
   const std::string front = state_->front.get(zmq::sockopt::last_endpoint);
   const std::string back = state_->back.get(zmq::sockopt::last_endpoint);
   thread_ = std::thread([this] { Loop(); });
@@ -91,7 +136,36 @@ void Broker::Stop() {
   if (thread_.joinable()) thread_.join();
   state_->front.close();
   state_->back.close();
+  state_->admin.close();
+  state_->authenticator.reset();
   state_->context.close();
+}
+
+// The broker's own Health (ready with at least one worker); any other request is refused, since
+// the broker holds no map: reload each worker on its own admin endpoint.
+void Broker::AnswerAdmin(size_t workers) {
+  std::vector<zmq::message_t> frames;
+  if (!zmq::recv_multipart(state_->admin, std::back_inserter(frames)) || frames.size() < 2) return;
+  wire::Request request;
+  const bool parsed =
+      request.ParseFromArray(frames.back().data(), static_cast<int>(frames.back().size()));
+  frames.pop_back();
+  if (!parsed || !request.has_health()) {
+    SendReply(state_->admin, frames,
+              RefusalFor(request, wire::INVALID_REQUEST,
+                         "a broker answers Health only; reload each worker on its admin endpoint"));
+    return;
+  }
+  wire::Response response = EnvelopeResponse();
+  const wire::Status status = workers > 0 ? wire::OK : wire::UNAVAILABLE;
+  response.set_status(status);
+  wire::HealthResponse* health = response.mutable_health();
+  health->set_status(status);
+  health->set_workers(static_cast<uint32_t>(workers));
+  health->set_uptime_s(NowSeconds() - started_s_);
+  if (workers == 0)
+    health->set_reason("no worker has joined the broker (or all missed heartbeats)");
+  SendReply(state_->admin, frames, response);
 }
 
 void Broker::Loop() {
@@ -103,21 +177,20 @@ void Broker::Loop() {
   Clock::time_point next_heartbeat = Clock::now() + options_.heartbeat_interval;
 
   const auto overloaded = [&](std::vector<std::string> frames) {
-    wire::Response response;
-    response.set_protocol_version(kProtocolVersion);
-    response.set_server_version(kServerVersion);
-    response.set_status(wire::OVERLOADED);
-    response.set_error_message(
-        fmt::format("{} requests wait for a worker; retry later", options_.max_queue));
-    frames.back() = response.SerializeAsString();
+    frames.back() = ErrorResponse(wire::OVERLOADED, fmt::format("{} requests wait for a worker; "
+                                                                "retry later",
+                                                                options_.max_queue))
+                        .SerializeAsString();
     SendFrames(state_->front, frames);
   };
 
   while (!stopping_) {
-    zmq::pollitem_t items[] = {{state_->back.handle(), 0, ZMQ_POLLIN, 0},
-                               {state_->front.handle(), 0, ZMQ_POLLIN, 0}};
-    zmq::poll(items, 2, options_.heartbeat_interval);
+    std::vector<zmq::pollitem_t> items = {{state_->back.handle(), 0, ZMQ_POLLIN, 0},
+                                          {state_->front.handle(), 0, ZMQ_POLLIN, 0}};
+    if (!admin_endpoint_.empty()) items.push_back({state_->admin.handle(), 0, ZMQ_POLLIN, 0});
+    zmq::poll(items, options_.heartbeat_interval);
     const Clock::time_point now = Clock::now();
+    if (items.size() > 2 && (items[2].revents & ZMQ_POLLIN)) AnswerAdmin(workers.size());
 
     if (items[0].revents & ZMQ_POLLIN) {
       std::vector<std::string> frames = ReceiveFrames(state_->back);

@@ -4,12 +4,19 @@
 // heartbeats with it. Requests wait in a bounded queue until a worker has a free slot; a worker
 // that misses its heartbeats is dropped and the requests it held go to another worker, so a
 // crashed worker loses no request.
+//
+// With CURVE the front admits clients as a single server does (the server's key, an allow-list of
+// client keys) and the back admits only the workers whose keys are on its own allow-list, so no
+// stranger receives the clients' requests. The admin endpoint answers the broker's own Health
+// (ready while at least one worker heartbeats), for its probes.
 #pragma once
 
 #include <atomic>
 #include <chrono>
+#include <memory>
 #include <string>
 #include <thread>
+#include <vector>
 
 namespace hscloc {
 
@@ -21,9 +28,18 @@ inline constexpr char kHeartbeat[] = "\x01HEARTBEAT";
 struct BrokerOptions {
   std::string front = "tcp://*:5555";  // clients
   std::string back = "tcp://*:5556";   // workers
-  size_t max_queue = 256;              // waiting requests beyond which OVERLOADED is answered
+  // The broker's own Health; loopback or ipc:// (ServiceOptions.admin_bind). Empty: none.
+  std::string admin_bind = "tcp://127.0.0.1:5557";
+  size_t max_queue = 256;  // waiting requests beyond which OVERLOADED is answered
   std::chrono::milliseconds heartbeat_interval{500};
   int heartbeat_liveness = 4;  // missed heartbeats after which a worker is dropped
+  // CURVE (Z85 keys): the front's secret key and the clients it admits (empty: any client with
+  // the front's public key), as ServiceOptions; the back's own secret key and the workers it
+  // admits (required with a back key: a worker is trusted with the clients' requests).
+  std::string curve_secret_key;
+  std::vector<std::string> curve_allowed_client_keys;
+  std::string backend_curve_secret_key;
+  std::vector<std::string> curve_allowed_worker_keys;
 
   void Check() const;
 };
@@ -35,8 +51,10 @@ class Broker {
   Broker(const Broker&) = delete;
   Broker& operator=(const Broker&) = delete;
 
-  // Binds both sockets and starts the broker's thread; returns the bound front and back endpoints.
+  // Binds the sockets and starts the broker's thread; returns the bound front and back endpoints.
   std::pair<std::string, std::string> Start();
+  // The admin endpoint as bound (its real port), or empty when there is none.
+  const std::string& admin_endpoint() const { return admin_endpoint_; }
   // Stops forwarding and closes the sockets. Idempotent.
   void Stop();
 
@@ -44,11 +62,16 @@ class Broker {
   size_t workers_dropped() const { return dropped_.load(); }
 
  private:
+  struct State;
+
+  void OpenSockets();
   void Loop();
+  void AnswerAdmin(size_t workers);
 
   BrokerOptions options_;
-  struct State;
   std::unique_ptr<State> state_;
+  std::string admin_endpoint_;
+  double started_s_ = 0;
   std::thread thread_;
   std::atomic<bool> stopping_{false};
   std::atomic<size_t> retried_{0};

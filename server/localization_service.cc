@@ -4,25 +4,34 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <set>
 #include <zmq.hpp>
 #include <zmq_addon.hpp>
 
 #include "server/broker.h"
+#include "server/curve_auth.h"
+#include "server/messages.h"
 #include "util/check.h"
 #include "util/parallel.h"
 #include "util/timer.h"
 
 namespace hscloc {
 
+// Which socket a request came through, and its reply goes back to: the first frame of every
+// message on the inproc replies channel.
+enum class LocalizationService::Origin : char { kPublic = 'p', kAdmin = 'a' };
+
 struct ZmqState {
   zmq::context_t context;
-  zmq::socket_t router;
-  zmq::socket_t replies;  // workers' replies, for the front thread
+  std::unique_ptr<CurveAuthenticator> authenticator;
+  zmq::socket_t router;       // clients, or the broker in worker mode
+  zmq::socket_t admin;        // the admin endpoint; unbound when there is none
+  zmq::socket_t replies;      // workers' and reloads' replies, for the front thread
+  zmq::socket_t reload_push;  // used on the reload thread only
   std::string replies_endpoint;
 };
 
 struct LocalizationService::Job {
+  Origin origin = Origin::kPublic;
   std::vector<zmq::message_t> envelope;  // routing identity (and a REQ client's empty delimiter)
   wire::Request request;
   Timer received;
@@ -35,6 +44,8 @@ struct LocalizationService::Serving {
 
 namespace {
 
+constexpr char kCurveDomain[] = "clients";
+
 // The monotonic clock of the service's lifetime (uptime).
 double NowSeconds() {
   static const Timer clock;
@@ -46,58 +57,53 @@ std::string MapIdOf(const std::filesystem::path& map_dir) {
   return canonical.filename().string();
 }
 
-std::shared_ptr<const Localizer> LoadLocalizer(const std::filesystem::path& map_dir,
-                                               const ServiceOptions& options) {
-  return std::make_shared<const Localizer>(
-      Localizer::FromBundle(map_dir, options.localizer, options.device));
-}
-
-void SendMessage(zmq::socket_t& socket, std::vector<zmq::message_t>& envelope,
-                 const std::string& payload) {
-  for (zmq::message_t& frame : envelope) {
-    socket.send(zmq::message_t(frame.data(), frame.size()), zmq::send_flags::sndmore);
-  }
-  socket.send(zmq::message_t(payload.data(), payload.size()), zmq::send_flags::none);
-}
-
-wire::Response EnvelopeResponse() {
-  wire::Response response;
-  response.set_protocol_version(kProtocolVersion);
-  response.set_server_version(kServerVersion);
-  return response;
-}
-
-wire::Response ErrorResponse(wire::Status status, const std::string& message) {
-  wire::Response response = EnvelopeResponse();
-  response.set_status(status);
-  response.set_error_message(message);
-  return response;
-}
-
-// A localize reply that carries `status` both in the envelope and in the localize message.
-wire::Response LocalizeErrorResponse(const wire::Request& request, wire::Status status,
-                                     const std::string& message) {
-  wire::Response response = ErrorResponse(status, message);
-  wire::LocalizeResponse* localize = response.mutable_localize();
-  localize->set_request_id(request.localize().request_id());
-  localize->set_status(status);
-  localize->set_error_message(message);
-  return response;
+// Whether the connection `message` came through authenticated with an admin CURVE key.
+bool FromAdminKey(zmq::message_t& message) {
+  const char* user = zmq_msg_gets(message.handle(), "User-Id");
+  return user != nullptr && std::string(user) == kAdminUserId;
 }
 
 }  // namespace
 
 void ServiceOptions::Check() const {
-  THROW_CHECK_MSG(!bind.empty(), "ServiceOptions.bind is empty");
+  THROW_CHECK_MSG(!bind.empty() || !connect.empty(), "ServiceOptions.bind is empty");
   THROW_CHECK_MSG(max_queue >= 1, "ServiceOptions.max_queue = {}", max_queue);
   THROW_CHECK_MSG(max_message_bytes >= 1024, "ServiceOptions.max_message_bytes = {}",
                   max_message_bytes);
-  THROW_CHECK_MSG(curve_secret_key.empty() || curve_secret_key.size() == 40,
-                  "ServiceOptions.curve_secret_key: a Z85 key has 40 characters, not {}",
-                  curve_secret_key.size());
+  THROW_CHECK_MSG(heartbeat_interval.count() > 0 && heartbeat_liveness >= 2,
+                  "ServiceOptions: heartbeat_interval {} ms, heartbeat_liveness {}",
+                  heartbeat_interval.count(), heartbeat_liveness);
+  if (!curve_secret_key.empty()) {
+    CheckCurveKey(curve_secret_key, "ServiceOptions.curve_secret_key (--curve-secret-key)");
+  }
   for (const std::string& key : curve_allowed_client_keys) {
-    THROW_CHECK_MSG(key.size() == 40,
-                    "ServiceOptions.curve_allowed_client_keys: '{}' is no Z85 key", key);
+    CheckCurveKey(key, "ServiceOptions.curve_allowed_client_keys (--curve-allowed-keys)");
+  }
+  for (const std::string& key : curve_admin_keys) {
+    CheckCurveKey(key, "ServiceOptions.curve_admin_keys (--curve-admin-keys)");
+  }
+  if (!connect.empty()) {
+    // A worker admits no clients: the broker does, and a worker cannot see the clients' keys.
+    THROW_CHECK_MSG(curve_allowed_client_keys.empty() && curve_admin_keys.empty(),
+                    "ServiceOptions.curve_allowed_client_keys and curve_admin_keys "
+                    "(--curve-allowed-keys, --curve-admin-keys): a worker (--connect) admits no "
+                    "clients; give them to the broker");
+    THROW_CHECK_MSG(curve_secret_key.empty() == curve_server_key.empty(),
+                    "ServiceOptions.curve_secret_key and curve_server_key: a worker (--connect) "
+                    "authenticates to its broker with both its secret key (--curve-secret-key) "
+                    "and the public key of the broker's backend (--curve-server-key)");
+  } else {
+    THROW_CHECK_MSG(curve_server_key.empty(),
+                    "ServiceOptions.curve_server_key (--curve-server-key): only a worker "
+                    "(--connect) connects to a CURVE server");
+    THROW_CHECK_MSG(
+        !curve_secret_key.empty() ||
+            (curve_allowed_client_keys.empty() && curve_admin_keys.empty()),
+        "ServiceOptions.curve_allowed_client_keys and curve_admin_keys (--curve-allowed-keys, "
+        "--curve-admin-keys) need the server's CURVE key (--curve-secret-key)");
+  }
+  if (!curve_server_key.empty()) {
+    CheckCurveKey(curve_server_key, "ServiceOptions.curve_server_key (--curve-server-key)");
   }
   localizer.Check();
 }
@@ -107,10 +113,6 @@ LocalizationService::LocalizationService(std::filesystem::path map_dir,
     : map_dir_(std::move(map_dir)), options_(options) {
   options_.Check();
   num_workers_ = ResolveNumThreads(options_.workers);
-  auto serving = std::make_shared<Serving>();
-  serving->localizer = LoadLocalizer(map_dir_, options_);
-  serving->map_id = MapIdOf(map_dir_);
-  serving_ = std::move(serving);
 }
 
 LocalizationService::~LocalizationService() { Stop(); }
@@ -120,254 +122,320 @@ std::shared_ptr<const LocalizationService::Serving> LocalizationService::Current
   return serving_;
 }
 
-std::string LocalizationService::map_id() const { return CurrentServing()->map_id; }
+std::string LocalizationService::map_id() const {
+  const std::shared_ptr<const Serving> serving = CurrentServing();
+  return serving == nullptr ? std::string() : serving->map_id;
+}
 
-std::string LocalizationService::Start() {
-  THROW_CHECK_MSG(zmq_ == nullptr, "LocalizationService: started twice");
-  zmq_ = std::make_unique<ZmqState>();
-  zmq_->context = zmq::context_t(1);
-  if (!options_.curve_secret_key.empty()) {
-    // The ZAP handler must be bound before the server socket authenticates anyone.
-    zmq::socket_t zap(zmq_->context, zmq::socket_type::rep);
-    zap.bind("inproc://zeromq.zap.01");
-    zap_thread_ = std::thread([this, socket = std::move(zap)]() mutable {
-      std::set<std::string> allowed;
-      for (const std::string& key : options_.curve_allowed_client_keys) {
-        uint8_t binary[32];
-        if (zmq_z85_decode(binary, key.c_str()) != nullptr) {
-          allowed.insert(std::string(reinterpret_cast<char*>(binary), 32));
-        }
-      }
-      while (true) {
-        std::vector<zmq::message_t> frames;
-        try {
-          if (!zmq::recv_multipart(socket, std::back_inserter(frames))) continue;
-        } catch (const zmq::error_t&) {
-          return;  // the context is closing
-        }
-        if (frames.size() < 7) continue;
-        const std::string key = frames[6].to_string();
-        const bool ok = allowed.empty() || allowed.count(key) > 0;
-        if (!ok) spdlog::warn("refused a client whose CURVE key is not allowed");
-        const std::string replies[] = {"1.0",
-                                       frames[1].to_string(),
-                                       ok ? "200" : "400",
-                                       ok ? "OK" : "client key not allowed",
-                                       "",
-                                       ""};
-        for (size_t i = 0; i < 6; ++i) {
-          socket.send(zmq::buffer(replies[i]),
-                      i + 1 < 6 ? zmq::send_flags::sndmore : zmq::send_flags::none);
-        }
-      }
-    });
-  }
+size_t LocalizationService::reloads_executed() const {
+  return reloader_ == nullptr ? 0 : reloader_->reloads_executed();
+}
+
+void LocalizationService::OpenSockets() {
   const bool worker_mode = !options_.connect.empty();
+  const bool curve = !options_.curve_secret_key.empty();
+  if (curve && !worker_mode) {
+    // The ZAP handler must be bound before the server socket authenticates anyone.
+    zmq_->authenticator = std::make_unique<CurveAuthenticator>(
+        zmq_->context, std::vector<CurveDomain>{{kCurveDomain, options_.curve_allowed_client_keys,
+                                                 options_.curve_admin_keys}});
+  }
   zmq_->router = zmq::socket_t(zmq_->context,
                                worker_mode ? zmq::socket_type::dealer : zmq::socket_type::router);
   // Messages up to twice the limit arrive and are refused with a reply; beyond that ZeroMQ drops
   // them (and the connection) before they take the memory.
   zmq_->router.set(zmq::sockopt::maxmsgsize, static_cast<int64_t>(2 * options_.max_message_bytes));
   zmq_->router.set(zmq::sockopt::linger, 1000);
-  if (!worker_mode) {
+  if (worker_mode) {
+    if (curve) {
+      MakeCurveClient(zmq_->router, options_.curve_server_key, options_.curve_secret_key);
+    }
+    try {
+      zmq_->router.connect(options_.connect);
+    } catch (const zmq::error_t& error) {
+      ThrowInvalidArgument("cannot connect to {} (--connect): {}", options_.connect, error.what());
+    }
+    endpoint_ = options_.connect;
+  } else {
     // Replies to clients that went away are dropped rather than queued forever.
     zmq_->router.set(zmq::sockopt::router_mandatory, 0);
+    if (curve) MakeCurveServer(zmq_->router, options_.curve_secret_key, kCurveDomain);
+    BindOrThrow(zmq_->router, options_.bind, "--bind");
+    endpoint_ = zmq_->router.get(zmq::sockopt::last_endpoint);
   }
-  if (!options_.curve_secret_key.empty()) {
-    zmq_->router.set(zmq::sockopt::curve_server, 1);
-    zmq_->router.set(zmq::sockopt::curve_secretkey, options_.curve_secret_key);
+  if (!options_.admin_bind.empty()) {
+    zmq_->admin = zmq::socket_t(zmq_->context, zmq::socket_type::router);
+    zmq_->admin.set(zmq::sockopt::linger, 1000);
+    zmq_->admin.set(zmq::sockopt::router_mandatory, 0);
+    BindOrThrow(zmq_->admin, options_.admin_bind, "--admin-bind");
+    admin_endpoint_ = zmq_->admin.get(zmq::sockopt::last_endpoint);
   }
-  try {
-    if (worker_mode) {
-      zmq_->router.connect(options_.connect);
-    } else {
-      zmq_->router.bind(options_.bind);
-    }
-  } catch (const zmq::error_t& error) {
-    ThrowInvalidArgument("cannot {} {}: {}", worker_mode ? "connect to" : "bind",
-                         worker_mode ? options_.connect : options_.bind, error.what());
-  }
-  endpoint_ = worker_mode ? options_.connect : zmq_->router.get(zmq::sockopt::last_endpoint);
   zmq_->replies = zmq::socket_t(zmq_->context, zmq::socket_type::pull);
   zmq_->replies_endpoint = fmt::format("inproc://hscloc-replies-{}", static_cast<void*>(this));
   zmq_->replies.bind(zmq_->replies_endpoint);
+  zmq_->reload_push = zmq::socket_t(zmq_->context, zmq::socket_type::push);
+  zmq_->reload_push.connect(zmq_->replies_endpoint);
+}
+
+std::string LocalizationService::Start() {
+  THROW_CHECK_MSG(zmq_ == nullptr, "LocalizationService: started twice");
+  zmq_ = std::make_unique<ZmqState>();
+  zmq_->context = zmq::context_t(1);
+  try {
+    OpenSockets();
+  } catch (...) {
+    zmq_.reset();
+    throw;
+  }
   started_s_ = NowSeconds();
+  reloader_ = std::make_unique<ReloadCoalescer>([this] { return LoadMap(); });
   for (int worker = 0; worker < num_workers_; ++worker) {
     workers_.emplace_back([this, worker] { WorkerLoop(worker); });
   }
   front_thread_ = std::thread([this] { FrontLoop(); });
+  spdlog::info("loading {} (public endpoint {}, admin endpoint {})", map_dir_.string(), endpoint_,
+               admin_endpoint_.empty() ? "none" : admin_endpoint_);
+  const ReloadOutcome loaded = reloader_->RequestAndWait();
+  if (!loaded.success) {
+    Stop();
+    ThrowInvalidArgument("{}", loaded.error_message);
+  }
   spdlog::info("serving {} on {} with {} workers (queue {})", map_id(), endpoint_, num_workers_,
                options_.max_queue);
   return endpoint_;
 }
 
+LocalizationService::Readiness LocalizationService::CurrentReadiness() const {
+  if (stopping_) return {wire::UNAVAILABLE, "draining before exit"};
+  if (CurrentServing() == nullptr) {
+    return {wire::LOADING, fmt::format("loading and verifying the map {}", map_dir_.string())};
+  }
+  if (options_.connect.empty()) return {wire::OK, ""};
+  const std::string hint =
+      options_.curve_secret_key.empty() ? "" : " (is this worker's key on its allow-list?)";
+  if (last_broker_contact_s_ < 0) {
+    return {wire::UNAVAILABLE,
+            fmt::format("no word yet from the broker at {}{}", options_.connect, hint)};
+  }
+  const double silent_s = NowSeconds() - last_broker_contact_s_;
+  const double liveness_s = options_.heartbeat_liveness *
+                            std::chrono::duration<double>(options_.heartbeat_interval).count();
+  if (silent_s > liveness_s) {
+    return {wire::UNAVAILABLE, fmt::format("no word from the broker at {} for {:.1f} s{}",
+                                           options_.connect, silent_s, hint)};
+  }
+  return {wire::OK, ""};
+}
+
+wire::Response LocalizationService::HealthReply() const {
+  const Readiness readiness = CurrentReadiness();
+  wire::Response response = EnvelopeResponse();
+  response.set_status(readiness.status);
+  wire::HealthResponse* health = response.mutable_health();
+  health->set_status(readiness.status);
+  health->set_reason(readiness.reason);
+  health->set_map_id(map_id());
+  health->set_uptime_s(NowSeconds() - started_s_);
+  std::lock_guard<std::mutex> lock(queue_mutex_);
+  health->set_queued_requests(static_cast<uint32_t>(queue_.size()));
+  return response;
+}
+
+wire::Response LocalizationService::InfoReply() const {
+  const std::shared_ptr<const Serving> serving = CurrentServing();
+  if (serving == nullptr) return ErrorResponse(wire::UNAVAILABLE, "the map is still loading");
+  wire::Response response = EnvelopeResponse();
+  response.set_status(wire::OK);
+  wire::InfoResponse* info = response.mutable_info();
+  const LocalizationMap& map = serving->localizer->map();
+  info->set_map_id(serving->map_id);
+  info->set_descriptor_dim(static_cast<uint32_t>(map.descriptor_dim()));
+  info->set_num_images(static_cast<uint32_t>(map.scene().NumImages()));
+  info->set_num_points(map.scene().NumPoints());
+  info->set_global_descriptor_dim(static_cast<uint32_t>(map.global_index().dimension()));
+  info->set_needs_global_descriptor(!map.vlad().has_value());
+  info->set_matcher(MatcherName(options_.localizer.matcher));
+  info->set_max_keypoints(options_.limits.max_keypoints);
+  info->set_workers(static_cast<uint32_t>(num_workers_));
+  return response;
+}
+
+void LocalizationService::Reply(const Job& job, const wire::Response& response) {
+  SendReply(job.origin == Origin::kAdmin ? zmq_->admin : zmq_->router, job.envelope, response);
+  ++answered_;
+}
+
+// Moves one message of the replies channel to the socket its first frame names.
+void LocalizationService::ForwardReply() {
+  std::vector<zmq::message_t> frames;
+  if (!zmq::recv_multipart(zmq_->replies, std::back_inserter(frames)) || frames.empty()) return;
+  const bool admin = frames.front().size() == 1 &&
+                     *frames.front().data<char>() == static_cast<char>(Origin::kAdmin);
+  frames.erase(frames.begin());
+  SendFrames(admin ? zmq_->admin : zmq_->router, frames);
+  ++answered_;
+}
+
+// Queues a reply on the replies channel (from a worker or the reload thread).
+void LocalizationService::PushReply(zmq::socket_t& push, const Job& job,
+                                    const wire::Response& response) {
+  const char origin = static_cast<char>(job.origin);
+  push.send(zmq::message_t(&origin, 1), zmq::send_flags::sndmore);
+  SendReply(push, job.envelope, response);
+}
+
+void LocalizationService::AcceptReload(std::unique_ptr<Job> job, bool admin) {
+  if (!admin) {
+    Reply(*job, RefusalFor(job->request, wire::PERMISSION_DENIED,
+                           "Reload is accepted on the admin endpoint (--admin-bind) or from an "
+                           "admin CURVE key (--curve-admin-keys)"));
+    return;
+  }
+  // Loading takes seconds: the reload thread replies through the channel when it is done.
+  std::shared_ptr<const Job> waiting = std::move(job);
+  const bool accepted =
+      !stopping_ && reloader_->Request([this, waiting](const ReloadOutcome& done) {
+        const wire::Status status = done.cancelled ? wire::UNAVAILABLE
+                                    : done.success ? wire::OK
+                                                   : wire::INTERNAL;
+        wire::Response response = EnvelopeResponse();
+        response.set_status(status);
+        wire::ReloadResponse* reload = response.mutable_reload();
+        reload->set_status(status);
+        reload->set_error_message(done.error_message);
+        reload->set_map_id(done.map_id);
+        PushReply(zmq_->reload_push, *waiting, response);
+      });
+  if (!accepted) {
+    Reply(*waiting, RefusalFor(waiting->request, wire::UNAVAILABLE, "the server is shutting down"));
+  }
+}
+
+void LocalizationService::AcceptLocalize(std::unique_ptr<Job> job) {
+  std::unique_lock<std::mutex> lock(queue_mutex_);
+  if (stopping_) {
+    lock.unlock();
+    Reply(*job, RefusalFor(job->request, wire::UNAVAILABLE, "the server is shutting down"));
+  } else if (CurrentServing() == nullptr) {
+    lock.unlock();
+    Reply(*job, RefusalFor(job->request, wire::UNAVAILABLE, "the map is still loading"));
+  } else if (queue_.size() >= options_.max_queue) {
+    lock.unlock();
+    Reply(*job,
+          RefusalFor(job->request, wire::OVERLOADED,
+                     fmt::format("{} requests are waiting; retry later", options_.max_queue)));
+  } else {
+    queue_.push_back(std::move(job));
+    lock.unlock();
+    queue_ready_.notify_one();
+  }
+}
+
+void LocalizationService::ReceiveRequest(Origin origin) {
+  zmq::socket_t& socket = origin == Origin::kAdmin ? zmq_->admin : zmq_->router;
+  std::vector<zmq::message_t> frames;
+  if (!zmq::recv_multipart(socket, std::back_inserter(frames))) return;
+  if (origin == Origin::kPublic && !options_.connect.empty()) {
+    last_broker_contact_s_ = NowSeconds();
+  }
+  if (frames.size() < 2) return;  // nothing to route a reply to, or the broker's heartbeat
+  zmq::message_t payload = std::move(frames.back());
+  frames.pop_back();
+  auto job = std::make_unique<Job>();
+  job->origin = origin;
+  job->envelope = std::move(frames);
+  if (payload.size() > options_.max_message_bytes) {
+    Reply(*job, ErrorResponse(wire::INVALID_REQUEST,
+                              fmt::format("message of {} bytes exceeds the server's limit of {}",
+                                          payload.size(), options_.max_message_bytes)));
+    return;
+  }
+  if (!job->request.ParseFromArray(payload.data(), static_cast<int>(payload.size()))) {
+    Reply(*job,
+          ErrorResponse(wire::INVALID_REQUEST, "the message is not an hscloc Request (protobuf)"));
+    return;
+  }
+  if (job->request.protocol_version() != kProtocolVersion) {
+    Reply(*job, ErrorResponse(wire::INVALID_REQUEST,
+                              fmt::format("protocol version {}; this server speaks version {} ({})",
+                                          job->request.protocol_version(), kProtocolVersion,
+                                          kServerVersion)));
+    return;
+  }
+  switch (job->request.kind_case()) {
+    case wire::Request::kHealth:
+      Reply(*job, HealthReply());
+      break;
+    case wire::Request::kInfo:
+      Reply(*job, InfoReply());
+      break;
+    case wire::Request::kReload: {
+      const bool admin =
+          origin == Origin::kAdmin || (!options_.curve_secret_key.empty() && FromAdminKey(payload));
+      AcceptReload(std::move(job), admin);
+      break;
+    }
+    case wire::Request::kLocalize:
+      AcceptLocalize(std::move(job));
+      break;
+    default:
+      Reply(*job, ErrorResponse(wire::INVALID_REQUEST, "the request has no kind"));
+  }
+}
+
 void LocalizationService::FrontLoop() {
-  std::vector<std::thread> reloads;
-  const auto reply = [&](std::vector<zmq::message_t>& envelope, const wire::Response& response) {
-    SendMessage(zmq_->router, envelope, response.SerializeAsString());
-    ++answered_;
-  };
   const bool worker_mode = !options_.connect.empty();
   const std::string ready = fmt::format("{}{}", kWorkerReady, num_workers_);
   auto next_ready = std::chrono::steady_clock::now();
   while (true) {
-    if (stopping_) {
+    if (stopping_ && reloader_->stopped()) {
       std::lock_guard<std::mutex> lock(queue_mutex_);
       if (queue_.empty() && running_ == 0) break;
     }
-    if (worker_mode && !stopping_ && std::chrono::steady_clock::now() >= next_ready) {
+    if (worker_mode && !stopping_ && CurrentServing() != nullptr &&
+        std::chrono::steady_clock::now() >= next_ready) {
       // The announcement doubles as the heartbeat, so a broker that restarted learns of us again.
-      zmq_->router.send(zmq::buffer(ready), zmq::send_flags::none);
+      // Never blocking: with no broker to take it (none yet, or one that refused our key), the
+      // announcement is dropped and Health goes on answering.
+      zmq_->router.send(zmq::buffer(ready), zmq::send_flags::dontwait);
       next_ready = std::chrono::steady_clock::now() + options_.heartbeat_interval;
     }
-    zmq::pollitem_t items[] = {{zmq_->router.handle(), 0, ZMQ_POLLIN, 0},
-                               {zmq_->replies.handle(), 0, ZMQ_POLLIN, 0}};
-    zmq::poll(items, 2, std::chrono::milliseconds(50));
-    if (items[1].revents & ZMQ_POLLIN) {
-      std::vector<zmq::message_t> frames;
-      if (zmq::recv_multipart(zmq_->replies, std::back_inserter(frames))) {
-        for (size_t i = 0; i < frames.size(); ++i) {
-          zmq_->router.send(
-              frames[i], i + 1 < frames.size() ? zmq::send_flags::sndmore : zmq::send_flags::none);
-        }
-        ++answered_;
-      }
-    }
-    if (!(items[0].revents & ZMQ_POLLIN)) continue;
-    std::vector<zmq::message_t> frames;
-    if (!zmq::recv_multipart(zmq_->router, std::back_inserter(frames)) || frames.size() < 2) {
-      continue;  // nothing to route a reply to, or the broker's heartbeat
-    }
-    zmq::message_t payload = std::move(frames.back());
-    frames.pop_back();
-    auto job = std::make_unique<Job>();
-    job->envelope = std::move(frames);
-    if (payload.size() > options_.max_message_bytes) {
-      reply(job->envelope,
-            ErrorResponse(wire::INVALID_REQUEST,
-                          fmt::format("message of {} bytes exceeds the server's limit of {}",
-                                      payload.size(), options_.max_message_bytes)));
-      continue;
-    }
-    if (!job->request.ParseFromArray(payload.data(), static_cast<int>(payload.size()))) {
-      reply(job->envelope, ErrorResponse(wire::INVALID_REQUEST,
-                                         "the message is not an hscloc Request (protobuf)"));
-      continue;
-    }
-    const wire::Request& request = job->request;
-    if (request.protocol_version() != kProtocolVersion) {
-      reply(
-          job->envelope,
-          ErrorResponse(wire::INVALID_REQUEST,
-                        fmt::format("protocol version {}; this server speaks version {} ({})",
-                                    request.protocol_version(), kProtocolVersion, kServerVersion)));
-      continue;
-    }
-    const std::shared_ptr<const Serving> serving = CurrentServing();
-    switch (request.kind_case()) {
-      case wire::Request::kHealth: {
-        wire::Response response = EnvelopeResponse();
-        response.set_status(stopping_ ? wire::UNAVAILABLE : wire::OK);
-        wire::HealthResponse* health = response.mutable_health();
-        health->set_status(response.status());
-        health->set_map_id(serving->map_id);
-        health->set_uptime_s(NowSeconds() - started_s_);
-        {
-          std::lock_guard<std::mutex> lock(queue_mutex_);
-          health->set_queued_requests(static_cast<uint32_t>(queue_.size()));
-        }
-        reply(job->envelope, response);
-        break;
-      }
-      case wire::Request::kInfo: {
-        wire::Response response = EnvelopeResponse();
-        response.set_status(wire::OK);
-        wire::InfoResponse* info = response.mutable_info();
-        const LocalizationMap& map = serving->localizer->map();
-        info->set_map_id(serving->map_id);
-        info->set_descriptor_dim(static_cast<uint32_t>(map.descriptor_dim()));
-        info->set_num_images(static_cast<uint32_t>(map.scene().NumImages()));
-        info->set_num_points(map.scene().NumPoints());
-        info->set_global_descriptor_dim(static_cast<uint32_t>(map.global_index().dimension()));
-        info->set_needs_global_descriptor(!map.vlad().has_value());
-        info->set_matcher(MatcherName(options_.localizer.matcher));
-        info->set_max_keypoints(options_.limits.max_keypoints);
-        info->set_workers(static_cast<uint32_t>(num_workers_));
-        reply(job->envelope, response);
-        break;
-      }
-      case wire::Request::kReload: {
-        // Loading takes seconds: a thread does it and replies through the workers' channel.
-        reloads.emplace_back([this, job = std::move(job)]() mutable {
-          const ReloadOutcome outcome = Reload();
-          wire::Response response = EnvelopeResponse();
-          response.set_status(outcome.success ? wire::OK : wire::INTERNAL);
-          wire::ReloadResponse* reload = response.mutable_reload();
-          reload->set_status(response.status());
-          reload->set_error_message(outcome.error_message);
-          reload->set_map_id(outcome.map_id);
-          zmq::socket_t push(zmq_->context, zmq::socket_type::push);
-          push.connect(zmq_->replies_endpoint);
-          SendMessage(push, job->envelope, response.SerializeAsString());
-        });
-        break;
-      }
-      case wire::Request::kLocalize: {
-        std::unique_lock<std::mutex> lock(queue_mutex_);
-        if (stopping_) {
-          lock.unlock();
-          reply(job->envelope,
-                LocalizeErrorResponse(request, wire::UNAVAILABLE, "the server is shutting down"));
-        } else if (queue_.size() >= options_.max_queue) {
-          lock.unlock();
-          reply(job->envelope,
-                LocalizeErrorResponse(
-                    request, wire::OVERLOADED,
-                    fmt::format("{} requests are waiting; retry later", options_.max_queue)));
-        } else {
-          queue_.push_back(std::move(job));
-          lock.unlock();
-          queue_ready_.notify_one();
-        }
-        break;
-      }
-      default:
-        reply(job->envelope, ErrorResponse(wire::INVALID_REQUEST, "the request has no kind"));
-    }
+    std::vector<zmq::pollitem_t> items = {{zmq_->replies.handle(), 0, ZMQ_POLLIN, 0},
+                                          {zmq_->router.handle(), 0, ZMQ_POLLIN, 0}};
+    if (!admin_endpoint_.empty()) items.push_back({zmq_->admin.handle(), 0, ZMQ_POLLIN, 0});
+    zmq::poll(items, std::chrono::milliseconds(50));
+    if (items[0].revents & ZMQ_POLLIN) ForwardReply();
+    if (items[1].revents & ZMQ_POLLIN) ReceiveRequest(Origin::kPublic);
+    if (items.size() > 2 && (items[2].revents & ZMQ_POLLIN)) ReceiveRequest(Origin::kAdmin);
   }
-  // Requests that reached the socket after the stop are still answered (UNAVAILABLE), until it
-  // has been quiet for a moment.
-  while (true) {
-    zmq::pollitem_t item = {zmq_->router.handle(), 0, ZMQ_POLLIN, 0};
-    zmq::poll(&item, 1, std::chrono::milliseconds(100));
-    if (!(item.revents & ZMQ_POLLIN)) break;
-    std::vector<zmq::message_t> frames;
-    if (!zmq::recv_multipart(zmq_->router, std::back_inserter(frames)) || frames.size() < 2) {
-      continue;
-    }
-    wire::Request request;
-    request.ParseFromArray(frames.back().data(), static_cast<int>(frames.back().size()));
-    frames.pop_back();
-    reply(frames,
-          request.has_localize()
-              ? LocalizeErrorResponse(request, wire::UNAVAILABLE, "the server is shutting down")
-              : ErrorResponse(wire::UNAVAILABLE, "the server is shutting down"));
-  }
+  RefuseLateRequests(zmq_->router);
+  if (!admin_endpoint_.empty()) RefuseLateRequests(zmq_->admin);
   // The last workers' replies may still be in flight on the inproc channel.
   while (true) {
     zmq::pollitem_t item = {zmq_->replies.handle(), 0, ZMQ_POLLIN, 0};
     zmq::poll(&item, 1, std::chrono::milliseconds(100));
     if (!(item.revents & ZMQ_POLLIN)) break;
+    ForwardReply();
+  }
+  front_done_ = true;
+}
+
+// Requests that reached `socket` after the stop are still answered (UNAVAILABLE), until it has
+// been quiet for a moment.
+void LocalizationService::RefuseLateRequests(zmq::socket_t& socket) {
+  while (true) {
+    zmq::pollitem_t item = {socket.handle(), 0, ZMQ_POLLIN, 0};
+    zmq::poll(&item, 1, std::chrono::milliseconds(100));
+    if (!(item.revents & ZMQ_POLLIN)) break;
     std::vector<zmq::message_t> frames;
-    if (!zmq::recv_multipart(zmq_->replies, std::back_inserter(frames))) break;
-    for (size_t i = 0; i < frames.size(); ++i) {
-      zmq_->router.send(frames[i],
-                        i + 1 < frames.size() ? zmq::send_flags::sndmore : zmq::send_flags::none);
-    }
+    if (!zmq::recv_multipart(socket, std::back_inserter(frames)) || frames.size() < 2) continue;
+    wire::Request request;
+    request.ParseFromArray(frames.back().data(), static_cast<int>(frames.back().size()));
+    frames.pop_back();
+    SendReply(socket, frames,
+              RefusalFor(request, wire::UNAVAILABLE, "the server is shutting down"));
     ++answered_;
   }
-  for (std::thread& thread : reloads) thread.join();
-  front_done_ = true;
 }
 
 void LocalizationService::WorkerLoop(int worker) {
@@ -383,42 +451,46 @@ void LocalizationService::WorkerLoop(int worker) {
       queue_.pop_front();
       ++running_;
     }
-    const wire::LocalizeRequest& request = job->request.localize();
-    wire::Response response = EnvelopeResponse();
-    wire::LocalizeResponse* localize = response.mutable_localize();
-    localize->set_request_id(request.request_id());
-    const std::shared_ptr<const Serving> serving = CurrentServing();
-    try {
-      if (!request.map_id().empty() && request.map_id() != serving->map_id) {
-        ThrowInvalidArgument("map '{}' requested, this server serves '{}'", request.map_id(),
-                             serving->map_id);
-      }
-      const LocalizationQuery query = QueryFromWire(request, options_.limits);
-      const LocalizerOptions options =
-          OptionsFromWire(request.options(), options_.localizer, options_.limits);
-      const PoseResult result = serving->localizer->Localize(query, options);
-      PoseResultToWire(result, serving->localizer->map().scene(), localize);
-      response.set_status(wire::OK);
-    } catch (const std::invalid_argument& error) {
-      response.set_status(wire::INVALID_REQUEST);
-      localize->set_status(wire::INVALID_REQUEST);
-      localize->set_error_message(error.what());
-    } catch (const std::exception& error) {
-      response.set_status(wire::INTERNAL);
-      localize->set_status(wire::INTERNAL);
-      localize->set_error_message(error.what());
-      spdlog::error("request {}: {}", request.request_id(), error.what());
-    }
-    const double server_ms = job->received.ElapsedMilliseconds();
-    localize->mutable_timings()->set_server_ms(server_ms);
-    spdlog::info("request {} worker {} {}: {} keypoints, {} inliers, {:.1f} ms{}",
-                 request.request_id(), worker, StatusName(localize->status()),
-                 request.num_keypoints(), localize->num_inliers(), server_ms,
-                 localize->error_message().empty() ? "" : " (" + localize->error_message() + ")");
-    SendMessage(push, job->envelope, response.SerializeAsString());
+    PushReply(push, *job, Localize(*job, worker));
     std::lock_guard<std::mutex> lock(queue_mutex_);
     --running_;
   }
+}
+
+wire::Response LocalizationService::Localize(const Job& job, int worker) const {
+  const wire::LocalizeRequest& request = job.request.localize();
+  wire::Response response = EnvelopeResponse();
+  wire::LocalizeResponse* localize = response.mutable_localize();
+  localize->set_request_id(request.request_id());
+  const std::shared_ptr<const Serving> serving = CurrentServing();
+  try {
+    if (!request.map_id().empty() && request.map_id() != serving->map_id) {
+      ThrowInvalidArgument("map '{}' requested, this server serves '{}'", request.map_id(),
+                           serving->map_id);
+    }
+    const LocalizationQuery query = QueryFromWire(request, options_.limits);
+    const LocalizerOptions options =
+        OptionsFromWire(request.options(), options_.localizer, options_.limits);
+    const PoseResult result = serving->localizer->Localize(query, options);
+    PoseResultToWire(result, serving->localizer->map().scene(), localize);
+    response.set_status(wire::OK);
+  } catch (const std::invalid_argument& error) {
+    response.set_status(wire::INVALID_REQUEST);
+    localize->set_status(wire::INVALID_REQUEST);
+    localize->set_error_message(error.what());
+  } catch (const std::exception& error) {
+    response.set_status(wire::INTERNAL);
+    localize->set_status(wire::INTERNAL);
+    localize->set_error_message(error.what());
+    spdlog::error("request {}: {}", request.request_id(), error.what());
+  }
+  const double server_ms = job.received.ElapsedMilliseconds();
+  localize->mutable_timings()->set_server_ms(server_ms);
+  spdlog::info("request {} worker {} {}: {} keypoints, {} inliers, {:.1f} ms{}",
+               request.request_id(), worker, StatusName(localize->status()),
+               request.num_keypoints(), localize->num_inliers(), server_ms,
+               localize->error_message().empty() ? "" : " (" + localize->error_message() + ")");
+  return response;
 }
 
 void LocalizationService::Stop() {
@@ -428,34 +500,47 @@ void LocalizationService::Stop() {
     stopping_ = true;
   }
   queue_ready_.notify_all();
+  // At most the running reload is waited for; the waiting ones are answered UNAVAILABLE.
+  reloader_->Stop();
   for (std::thread& worker : workers_) worker.join();
   workers_.clear();
   if (front_thread_.joinable()) front_thread_.join();
   zmq_->router.close();
+  zmq_->admin.close();
   zmq_->replies.close();
-  zmq_->context.shutdown();
-  if (zap_thread_.joinable()) zap_thread_.join();
+  zmq_->reload_push.close();
+  zmq_->authenticator.reset();
   zmq_->context.close();
   spdlog::info("stopped after answering {} requests", answered_.load());
 }
 
 ReloadOutcome LocalizationService::Reload() {
-  std::lock_guard<std::mutex> reload_lock(reload_mutex_);
+  THROW_CHECK_MSG(reloader_ != nullptr, "LocalizationService: Reload before Start");
+  return reloader_->RequestAndWait();
+}
+
+void LocalizationService::RequestReload() {
+  THROW_CHECK_MSG(reloader_ != nullptr, "LocalizationService: Reload before Start");
+  reloader_->Request([](const ReloadOutcome&) {});  // LoadMap logs the outcome
+}
+
+ReloadOutcome LocalizationService::LoadMap() {
   ReloadOutcome outcome;
   try {
     auto serving = std::make_shared<Serving>();
-    serving->localizer = LoadLocalizer(map_dir_, options_);
+    serving->localizer = std::make_shared<const Localizer>(
+        Localizer::FromBundle(map_dir_, options_.localizer, options_.device));
     serving->map_id = MapIdOf(map_dir_);
     outcome.map_id = serving->map_id;
     std::lock_guard<std::mutex> lock(serving_mutex_);
     serving_ = std::move(serving);
     outcome.success = true;
-    spdlog::info("reloaded map {} from {}", outcome.map_id, map_dir_.string());
+    spdlog::info("loaded and verified map {} from {}", outcome.map_id, map_dir_.string());
   } catch (const std::exception& error) {
     outcome.error_message = error.what();
     outcome.map_id = map_id();
-    spdlog::error("reload of {} failed, the previous map keeps serving: {}", map_dir_.string(),
-                  error.what());
+    spdlog::error("loading {} failed{}: {}", map_dir_.string(),
+                  outcome.map_id.empty() ? "" : ", the previous map keeps serving", error.what());
   }
   return outcome;
 }

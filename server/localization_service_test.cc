@@ -69,6 +69,7 @@ class LocalizationServiceTest : public ::testing::Test {
   static ServiceOptions LoopbackOptions() {
     ServiceOptions options;
     options.bind = "tcp://127.0.0.1:0";
+    options.admin_bind = "tcp://127.0.0.1:0";
     options.workers = 2;
     return options;
   }
@@ -343,12 +344,10 @@ TEST_F(LocalizationServiceTest, CorruptMapOnReloadLeavesTheOldMapServing) {
     file.seekp(100);
     file.put('\x5a');
   }
-  wire::Request reload;
-  reload.mutable_reload();
-  const wire::Response failed = client.Call(reload);
-  ASSERT_TRUE(failed.has_reload());
-  EXPECT_EQ(failed.reload().status(), wire::INTERNAL);
-  EXPECT_THAT(failed.reload().error_message(), HasSubstr("label_tree.bin"));
+  LocalizationClient admin(ClientFor(service.admin_endpoint()));
+  const wire::ReloadResponse failed = admin.Reload();
+  EXPECT_EQ(failed.status(), wire::INTERNAL);
+  EXPECT_THAT(failed.error_message(), HasSubstr("label_tree.bin"));
   EXPECT_EQ(client.Localize(RequestOf(Queries()[2], true)).status(), wire::OK);
 
   fs::copy_file(MapDir() / "label_tree.bin", map / "label_tree.bin",

@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """Checks deploy/: the Kubernetes manifests and compose file parse and hold what an operator
-relies on (probes, resource requests, the autoscaler, the map volume), the processes they start
-use the arguments deploy/smoke.sh exercises, and the systemd unit has its hardening.
+relies on (probes, resource requests, the autoscaler, the map volume), every process they start
+runs with CURVE (keys from a Secret) and is probed on its own admin endpoint, never through a
+Service, the processes use the arguments deploy/smoke.sh exercises, and the systemd unit has its
+hardening and uses its admin endpoint.
 Usage: check_deploy.py DEPLOY_DIR"""
 import configparser
 import pathlib
@@ -27,17 +29,64 @@ kinds = {document["kind"] for _, document in documents}
 for kind in ("Deployment", "Service", "HorizontalPodAutoscaler", "PersistentVolumeClaim"):
     check(kind in kinds, f"kubernetes: no {kind}")
 
+# The CURVE flags each role must run with.
+CURVE_FLAGS = {
+    "broker": ["--curve-secret-key", "--curve-allowed-keys", "--backend-curve-secret-key",
+               "--curve-allowed-worker-keys"],
+    "worker": ["--curve-secret-key", "--curve-server-key"],
+}
+LOCAL_HOSTS = ("tcp://127.0.0.1:", "tcp://localhost:", "ipc://")
+
+
+def flag_value(args, flag):
+    return args[args.index(flag) + 1] if flag in args and args.index(flag) + 1 < len(args) else None
+
+
+def check_local_probe(where, command, args, live, services):
+    """A probe runs hscloc-client health on the process's own admin endpoint."""
+    check(command[:1] == ["hscloc-client"] and "health" in command,
+          f"{where}: the probe is not hscloc-client health")
+    server = flag_value(command, "--server") or ""
+    check(server.startswith(LOCAL_HOSTS), f"{where}: the probe asks {server!r}, not this process")
+    check(server == flag_value(args, "--admin-bind"),
+          f"{where}: the probe asks {server!r}, the process's admin endpoint is "
+          f"{flag_value(args, '--admin-bind')!r}")
+    host = server.split("://")[-1].rsplit(":", 1)[0]
+    check(host not in services, f"{where}: the probe goes through the Service {host}")
+    check(("--live" in command) == live,
+          f"{where}: {'liveness' if live else 'readiness'} probe {'without' if live else 'with'} --live")
+
+
+def check_curve(where, role, args, key_dirs):
+    for flag in CURVE_FLAGS.get(role, []):
+        value = flag_value(args, flag)
+        check(value is not None, f"{where}: runs without {flag}")
+        if value is not None:
+            check(any(value.startswith(d + "/") for d in key_dirs),
+                  f"{where}: {flag} {value} is not on a volume of keys from a Secret")
+
+
+services = [d["metadata"]["name"] for _, d in documents if d["kind"] == "Service"]
 smoke = (deploy / "smoke.sh").read_text()
 arguments = {}
 for name, document in documents:
     if document["kind"] != "Deployment":
         continue
-    for container in document["spec"]["template"]["spec"]["containers"]:
+    pod = document["spec"]["template"]["spec"]
+    secret_volumes = {v["name"] for v in pod.get("volumes", []) if "secret" in v}
+    for container in pod["containers"]:
         where = f"{name}: container {container['name']}"
-        for probe in ("readinessProbe", "livenessProbe"):
-            check(probe in container, f"{where}: no {probe}")
-        check("requests" in container.get("resources", {}), f"{where}: no resource requests")
         args = container["args"]
+        for probe, live in (("readinessProbe", False), ("livenessProbe", True)):
+            check(probe in container, f"{where}: no {probe}")
+            spec = container.get(probe, {})
+            check("exec" in spec, f"{where}: {probe} does not ask the process itself (exec)")
+            if "exec" in spec:
+                check_local_probe(f"{where} {probe}", spec["exec"]["command"], args, live, services)
+        check("requests" in container.get("resources", {}), f"{where}: no resource requests")
+        key_dirs = [m["mountPath"] for m in container.get("volumeMounts", [])
+                    if m["name"] in secret_volumes]
+        check_curve(where, container["name"], args, key_dirs)
         arguments[container["name"]] = args
         # Every flag the manifest passes is one the smoke test passes too.
         for flag in (a for a in args if a.startswith("--")):
@@ -52,6 +101,19 @@ compose = yaml.safe_load((deploy / "compose.yaml").read_text())
 check(set(compose["services"]) >= {"broker", "worker", "batch"},
       "compose: broker, worker and batch services expected")
 check(compose["services"]["worker"]["deploy"]["replicas"] == 2, "compose: two workers expected")
+for role in ("broker", "worker"):
+    service = compose["services"][role]
+    check_curve(f"compose {role}", role, service["command"], ["/run/secrets"])
+    healthcheck = service.get("healthcheck", {}).get("test", [])[1:]
+    check(bool(healthcheck), f"compose {role}: no healthcheck")
+    if healthcheck:
+        check_local_probe(f"compose {role} healthcheck", healthcheck, service["command"], False,
+                          list(compose["services"]))
+    for flag in (a for a in service["command"] if a.startswith("--")):
+        check(flag in smoke, f"compose {role}: {flag} is not exercised by smoke.sh")
+batch = compose["services"]["batch"]["command"]
+for flag in ("--curve-server-key", "--curve-secret-key"):
+    check(flag in batch, f"compose batch: runs without {flag}")
 
 unit = configparser.ConfigParser(strict=False, interpolation=None)
 unit.optionxform = str
@@ -61,7 +123,13 @@ check(service.get("ExecStart", "").split()[1:2] == ["serve"], "systemd: ExecStar
 for key, value in (("DynamicUser", "yes"), ("ProtectSystem", "strict"), ("NoNewPrivileges", "yes"),
                    ("Restart", "on-failure")):
     check(service.get(key) == value, f"systemd: {key}={value} expected")
-check("ExecReload" in service, "systemd: no ExecReload (SIGHUP reloads the map)")
+exec_start = service.get("ExecStart", "").split()
+admin = flag_value(exec_start, "--admin-bind") or ""
+check(admin.startswith(LOCAL_HOSTS), f"systemd: the admin endpoint {admin!r} is not local")
+check(f"--server {admin}" in service.get("ExecReload", "") and "reload" in service["ExecReload"],
+      "systemd: ExecReload does not reload on the admin endpoint")
+check(f"--server {admin}" in service.get("ExecStartPost", "") and "health" in service["ExecStartPost"],
+      "systemd: ExecStartPost does not wait for readiness on the admin endpoint")
 
 dockerfile = (deploy / "Dockerfile").read_text()
 check(dockerfile.count("FROM ") >= 2, "Dockerfile: a build and a runtime stage expected")

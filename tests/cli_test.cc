@@ -4,18 +4,14 @@
 #include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
-#include <signal.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
-#include <chrono>
 #include <fstream>
 #include <map>
 #include <sstream>
-#include <thread>
 
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
+#include "tests/serve_process.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -23,13 +19,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
-
-std::string ReadText(const fs::path& path) {
-  std::ifstream file(path);
-  std::stringstream text;
-  text << file.rdbuf();
-  return text.str();
-}
+using testing::ReadText;
 
 // Runs `hscloc ARGUMENTS`, returning its exit status; its output goes to `log`.
 int Hscloc(const std::string& arguments, const fs::path& log) {
@@ -130,37 +120,19 @@ TEST_F(CliTest, ClientBatchThroughTheServerEqualsOfflineLocalize) {
                                NightList(), Features(), offline),
                    temp_ / "offline.log"),
             0);
-  const fs::path server_log = temp_ / "serve.log";
-  const pid_t server = fork();
-  if (server == 0) {
-    const std::string log = server_log.string();
-    freopen(log.c_str(), "w", stdout);
-    freopen(log.c_str(), "a", stderr);
-    const std::string map = Map();
-    execl(HSCLOC_BINARY, HSCLOC_BINARY, "serve", "--map", map.c_str(), "--bind",
-          "tcp://127.0.0.1:0", "--workers", "2", static_cast<char*>(nullptr));
-    _exit(127);
-  }
-  std::string endpoint;
-  for (int wait = 0; wait < 600 && endpoint.empty(); ++wait) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    const std::string log = ReadText(server_log);
-    const size_t at = log.find("listening on ");
-    if (at != std::string::npos && log.find('\n', at) != std::string::npos) {
-      endpoint = log.substr(at + 13, log.find('\n', at) - at - 13);
-    }
-  }
-  ASSERT_FALSE(endpoint.empty()) << ReadText(server_log);
+  testing::ServeProcess server({"--map", Map(), "--bind", "tcp://127.0.0.1:0", "--admin-bind",
+                                "tcp://127.0.0.1:0", "--workers", "2"},
+                               temp_ / "serve.log");
+  const std::string endpoint = server.WaitForLine("listening on ");
+  ASSERT_FALSE(endpoint.empty()) << server.Log();
   const std::string served = Temp("served.txt");
   const int status = testing::RunCommand(
       fmt::format("{} batch --server {} --float32 --queries {} --features {} --out {} --inflight 4",
                   HSCLOC_CLIENT_BINARY, endpoint, NightList(), Features(), served),
       Temp("client.log"));
-  kill(server, SIGTERM);
-  int server_status = 0;
-  waitpid(server, &server_status, 0);
+  const int server_status = server.Terminate();
   ASSERT_EQ(status, 0) << ReadText(temp_ / "client.log");
-  EXPECT_TRUE(WIFEXITED(server_status) && WEXITSTATUS(server_status) == 0) << ReadText(server_log);
+  EXPECT_EQ(server_status, 0) << server.Log();
   // Same lines; the client writes them in completion order.
   std::map<std::string, std::string> expected;
   for (const NamedPose& pose : ReadPoses(offline)) {

@@ -2,9 +2,6 @@
 // requests in flight, and one worker killed under load; no request may be lost.
 #include <fmt/format.h>
 #include <gtest/gtest.h>
-#include <signal.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <atomic>
 #include <thread>
@@ -13,7 +10,9 @@
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
 #include "server/broker.h"
+#include "server/loopback_testing.h"
 #include "server/wire.h"
+#include "tests/serve_process.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -21,51 +20,23 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// A child process running `hscloc serve --connect BACKEND`, killed with SIGKILL unless stopped.
-class WorkerProcess {
- public:
-  WorkerProcess(const fs::path& map, const std::string& backend, const fs::path& log) {
-    pid_ = fork();
-    if (pid_ == 0) {
-      const std::string log_path = log.string();
-      freopen(log_path.c_str(), "w", stdout);
-      freopen(log_path.c_str(), "a", stderr);
-      execl(HSCLOC_BINARY, HSCLOC_BINARY, "serve", "--map", map.c_str(), "--connect",
-            backend.c_str(), "--workers", "1", static_cast<char*>(nullptr));
-      _exit(127);
-    }
-  }
-  ~WorkerProcess() { Kill(); }
-  void Kill() {
-    if (pid_ <= 0) return;
-    kill(pid_, SIGKILL);
-    waitpid(pid_, nullptr, 0);
-    pid_ = -1;
-  }
-  // SIGTERM, then the exit status.
-  int Terminate() {
-    kill(pid_, SIGTERM);
-    int status = 0;
-    waitpid(pid_, &status, 0);
-    pid_ = -1;
-    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  }
-
- private:
-  pid_t pid_ = -1;
-};
+// A worker process: `hscloc serve --connect BACKEND`, its admin endpoint on a free port.
+testing::ServeProcess StartWorker(const fs::path& map, const std::string& backend,
+                                  const fs::path& log) {
+  return testing::ServeProcess({"--map", map.string(), "--connect", backend, "--workers", "1",
+                                "--admin-bind", "tcp://127.0.0.1:0"},
+                               log);
+}
 
 TEST(ScaleOutTest, AKilledWorkerLosesNoRequest) {
   HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
   testing::TempDir temp;
-  BrokerOptions options;
-  options.front = "tcp://127.0.0.1:0";
-  options.back = "tcp://127.0.0.1:0";
+  BrokerOptions options = testing::LoopbackBrokerOptions();
   options.heartbeat_interval = std::chrono::milliseconds(200);
   Broker broker(options);
   const auto [front, back] = broker.Start();
-  WorkerProcess first(dir / "map", back, temp / "worker1.log");
-  WorkerProcess second(dir / "map", back, temp / "worker2.log");
+  testing::ServeProcess first = StartWorker(dir / "map", back, temp / "worker1.log");
+  testing::ServeProcess second = StartWorker(dir / "map", back, temp / "worker2.log");
 
   std::vector<wire::LocalizeRequest> requests;
   const auto features = OpenH5Features(dir / "city" / "features.h5");

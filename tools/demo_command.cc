@@ -129,6 +129,7 @@ fs::path LocalizeThroughServer(const DemoInputs& inputs, const fs::path& bundle,
   spdlog::set_level(spdlog::level::warn);
   ServiceOptions service_options;
   service_options.bind = "tcp://127.0.0.1:0";
+  service_options.admin_bind = "";  // no reloads, no probes in process
   SetComputeThreads(1);
   LocalizationService service(bundle, service_options);
   const std::string endpoint = service.Start();

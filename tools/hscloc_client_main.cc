@@ -41,17 +41,24 @@ void PrintResponse(const wire::LocalizeResponse& response) {
 struct CommonArguments {
   ClientOptions client;
   std::string curve_server_key_file;
+  std::string curve_secret_key_file;
   bool float16 = true;
 };
 
-void ResolveKeys(CommonArguments& common) {
-  if (common.curve_server_key_file.empty()) return;
-  std::ifstream file(common.curve_server_key_file);
+// The first 40 characters of a key file's first line; empty for no file.
+std::string ReadKeyFile(const std::string& path) {
+  if (path.empty()) return "";
+  std::ifstream file(path);
   std::string key;
   if (!file || !std::getline(file, key) || key.size() < 40) {
-    throw std::invalid_argument("cannot read a Z85 key from " + common.curve_server_key_file);
+    throw std::invalid_argument("cannot read a Z85 key from " + path);
   }
-  common.client.curve_server_key = key.substr(0, 40);
+  return key.substr(0, 40);
+}
+
+void ResolveKeys(CommonArguments& common) {
+  common.client.curve_server_key = ReadKeyFile(common.curve_server_key_file);
+  common.client.curve_secret_key = ReadKeyFile(common.curve_secret_key_file);
 }
 
 int RunBatchCommand(CommonArguments& common, const std::vector<std::string>& lists,
@@ -92,6 +99,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--curve-server-key", common.curve_server_key_file,
                  "File with the server's CURVE public key (encrypted connection)");
+  app.add_option("--curve-secret-key", common.curve_secret_key_file,
+                 "File with this client's CURVE secret key, for servers that allow listed keys "
+                 "only (default: a fresh key pair)");
   bool float32 = false;
   app.add_flag("--float32", float32,
                "Send descriptors as float32 (default float16: half the bytes, results may differ "
@@ -156,15 +166,36 @@ int main(int argc, char** argv) {
   batch->callback(
       [&] { run = [&] { return RunBatchCommand(common, *lists, *features, *out, *inflight); }; });
 
-  CLI::App* health = app.add_subcommand("health", "Ask the server whether it serves");
+  CLI::App* health = app.add_subcommand(
+      "health",
+      "Ask a process whether it is ready (exit 0) or not (1); on its admin endpoint, "
+      "the probe of that process alone");
+  auto live = std::make_shared<bool>(false);
+  health->add_flag("--live", *live,
+                   "Liveness: exit 0 on any reply, ready or not (e.g. still loading its map)");
   health->callback([&] {
     run = [&] {
       ResolveKeys(common);
       LocalizationClient client(common.client);
       const wire::HealthResponse response = client.Health();
-      std::cout << fmt::format("{} map {} up {:.0f} s, {} queued\n",
-                               wire::Status_Name(response.status()), response.map_id(),
-                               response.uptime_s(), response.queued_requests());
+      std::cout << fmt::format(
+          "{} map {} up {:.0f} s, {} queued{}{}\n", wire::Status_Name(response.status()),
+          response.map_id(), response.uptime_s(), response.queued_requests(),
+          response.workers() > 0 ? fmt::format(", {} workers", response.workers()) : "",
+          response.reason().empty() ? "" : ": " + response.reason());
+      return *live || response.status() == wire::OK ? 0 : 1;
+    };
+  });
+  CLI::App* reload = app.add_subcommand(
+      "reload", "Reload the server's map (its admin endpoint, or with an admin CURVE key)");
+  reload->callback([&] {
+    run = [&] {
+      ResolveKeys(common);
+      LocalizationClient client(common.client);
+      const wire::ReloadResponse response = client.Reload();
+      std::cout << fmt::format(
+          "{} map {}{}\n", wire::Status_Name(response.status()), response.map_id(),
+          response.error_message().empty() ? "" : ": " + response.error_message());
       return response.status() == wire::OK ? 0 : 1;
     };
   });

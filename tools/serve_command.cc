@@ -22,8 +22,13 @@ struct ServeArguments {
   std::string backend = "tcp://*:5556";
   std::string map_dir;
   std::string matcher = "hsc";
+  // Key files (hscloc keygen): secret keys hold one key, lists one public key per line.
   std::string curve_secret_key_file;
   std::string curve_allowed_keys_file;
+  std::string curve_admin_keys_file;
+  std::string curve_server_key_file;
+  std::string backend_curve_secret_key_file;
+  std::string curve_allowed_worker_keys_file;
   ServiceOptions options;
 };
 
@@ -35,6 +40,47 @@ std::string ReadKey(const std::string& path) {
   while (!key.empty() && std::isspace(static_cast<unsigned char>(key.back()))) key.pop_back();
   if (key.size() != 40) ThrowInvalidArgument("{}: a Z85 CURVE key has 40 characters", path);
   return key;
+}
+
+// The public keys of a list file, one per line ('#' starts a comment line); none for no file.
+std::vector<std::string> ReadKeyList(const std::string& path) {
+  std::vector<std::string> keys;
+  if (path.empty()) return keys;
+  std::ifstream file(path);
+  if (!file) ThrowInvalidArgument("cannot read {}", path);
+  for (std::string line; std::getline(file, line);) {
+    if (line.empty() || line[0] == '#') continue;
+    if (line.size() < 40) ThrowInvalidArgument("{}: '{}' is no Z85 key", path, line);
+    keys.push_back(line.substr(0, 40));
+  }
+  return keys;
+}
+
+std::string ReadOptionalKey(const std::string& path) { return path.empty() ? "" : ReadKey(path); }
+
+// Flags that the chosen mode cannot honour are refused here, before anything starts: a security
+// flag silently ignored would leave the service open while its operator believes it closed.
+void CheckFlagsFitMode(const ServeArguments& arguments) {
+  const auto refuse = [](bool given, const std::string& flag, const std::string& why) {
+    if (given) ThrowInvalidArgument("serve: {} {}", flag, why);
+  };
+  if (arguments.broker) {
+    refuse(!arguments.map_dir.empty(), "--map",
+           "is not used by a broker (--broker): workers load it");
+    refuse(!arguments.options.connect.empty(), "--connect", "and --broker exclude each other");
+    refuse(!arguments.curve_admin_keys_file.empty(), "--curve-admin-keys",
+           "cannot be honoured by a broker: it holds no map; reload each worker on its admin "
+           "endpoint");
+    refuse(!arguments.curve_server_key_file.empty(), "--curve-server-key",
+           "is for workers (--connect): the broker's back takes --backend-curve-secret-key");
+    return;
+  }
+  for (const auto& [file, flag] :
+       {std::pair{arguments.backend_curve_secret_key_file, "--backend-curve-secret-key"},
+        std::pair{arguments.curve_allowed_worker_keys_file, "--curve-allowed-worker-keys"}}) {
+    refuse(!file.empty(), flag, "is for the broker (--broker) only");
+  }
+  if (arguments.map_dir.empty()) ThrowInvalidArgument("serve: --map is required (except --broker)");
 }
 
 // Blocks SIGTERM, SIGINT and SIGHUP in this thread and every thread started after it, so that
@@ -53,11 +99,17 @@ int RunBroker(const ServeArguments& arguments) {
   BrokerOptions options;
   options.front = arguments.options.bind;
   options.back = arguments.backend;
+  options.admin_bind = arguments.options.admin_bind;
   options.max_queue = arguments.options.max_queue;
+  options.curve_secret_key = ReadOptionalKey(arguments.curve_secret_key_file);
+  options.curve_allowed_client_keys = ReadKeyList(arguments.curve_allowed_keys_file);
+  options.backend_curve_secret_key = ReadOptionalKey(arguments.backend_curve_secret_key_file);
+  options.curve_allowed_worker_keys = ReadKeyList(arguments.curve_allowed_worker_keys_file);
   sigset_t signals = BlockSignals();
   Broker broker(options);
   const auto [front, back] = broker.Start();
-  std::cout << fmt::format("broker listening on {} (clients) and {} (workers)\n", front, back)
+  std::cout << fmt::format("broker listening on {} (clients) and {} (workers)\nadmin on {}\n",
+                           front, back, broker.admin_endpoint())
             << std::flush;
   while (true) {
     int signal = 0;
@@ -70,24 +122,14 @@ int RunBroker(const ServeArguments& arguments) {
 }
 
 int RunServe(ServeArguments& arguments) {
+  CheckFlagsFitMode(arguments);
   if (arguments.broker) return RunBroker(arguments);
   ServiceOptions& options = arguments.options;
-  if (arguments.map_dir.empty()) ThrowInvalidArgument("serve: --map is required (except --broker)");
   options.localizer.matcher = ParseMatcher(arguments.matcher);
-  if (!arguments.curve_secret_key_file.empty()) {
-    options.curve_secret_key = ReadKey(arguments.curve_secret_key_file);
-  }
-  if (!arguments.curve_allowed_keys_file.empty()) {
-    std::ifstream file(arguments.curve_allowed_keys_file);
-    if (!file) ThrowInvalidArgument("cannot read {}", arguments.curve_allowed_keys_file);
-    for (std::string line; std::getline(file, line);) {
-      if (line.empty() || line[0] == '#') continue;
-      if (line.size() < 40) {
-        ThrowInvalidArgument("{}: '{}' is no Z85 key", arguments.curve_allowed_keys_file, line);
-      }
-      options.curve_allowed_client_keys.push_back(line.substr(0, 40));
-    }
-  }
+  options.curve_secret_key = ReadOptionalKey(arguments.curve_secret_key_file);
+  options.curve_server_key = ReadOptionalKey(arguments.curve_server_key_file);
+  options.curve_allowed_client_keys = ReadKeyList(arguments.curve_allowed_keys_file);
+  options.curve_admin_keys = ReadKeyList(arguments.curve_admin_keys_file);
   // Queries run in parallel on the workers, each on one core (docs/decisions.md).
   SetComputeThreads(1);
 
@@ -95,13 +137,15 @@ int RunServe(ServeArguments& arguments) {
 
   LocalizationService service(arguments.map_dir, options);
   const std::string endpoint = service.Start();
-  std::cout << fmt::format("listening on {}\n", endpoint) << std::flush;
+  std::cout << fmt::format("listening on {}\nadmin on {}\n", endpoint, service.admin_endpoint())
+            << std::flush;
   while (true) {
     int signal = 0;
     if (sigwait(&signals, &signal) != 0) continue;
     if (signal == SIGHUP) {
+      // Not waited for here, so that a SIGTERM right after it waits for one reload at most.
       spdlog::info("SIGHUP: reloading {}", arguments.map_dir);
-      service.Reload();
+      service.RequestReload();
       continue;
     }
     spdlog::info("{}: draining in-flight requests", signal == SIGTERM ? "SIGTERM" : "SIGINT");
@@ -119,6 +163,11 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
   command->add_option("--map", arguments->map_dir, "Trained map bundle")
       ->check(CLI::ExistingDirectory);
   command->add_option("--bind", options.bind, "ZeroMQ endpoint for clients (port 0: any free port)")
+      ->capture_default_str();
+  command
+      ->add_option("--admin-bind", options.admin_bind,
+                   "Endpoint of this process's Reload and probes (Health); loopback or ipc:// "
+                   "only, since whoever reaches it may reload ('': none)")
       ->capture_default_str();
   command->add_flag("--broker", arguments->broker,
                     "Run as the broker: clients on --bind, workers on --backend");
@@ -144,10 +193,20 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
   command->add_option("--top-k", options.localizer.top_k, "Retrieved images per query")
       ->capture_default_str();
   command->add_option("--curve-secret-key", arguments->curve_secret_key_file,
-                      "File with the server's CURVE secret key (hscloc keygen): encrypts "
-                      "traffic and authenticates clients");
+                      "File with this process's CURVE secret key (hscloc keygen): a server's or "
+                      "the broker front's key (encrypts and authenticates clients), or a "
+                      "worker's own key (with --curve-server-key)");
   command->add_option("--curve-allowed-keys", arguments->curve_allowed_keys_file,
                       "File with the allowed clients' public keys, one per line");
+  command->add_option("--curve-admin-keys", arguments->curve_admin_keys_file,
+                      "File with the public keys that may also Reload on --bind, one per line");
+  command->add_option("--curve-server-key", arguments->curve_server_key_file,
+                      "A worker (--connect): file with the public key of the broker's backend");
+  command->add_option("--backend-curve-secret-key", arguments->backend_curve_secret_key_file,
+                      "The broker: file with its backend's CURVE secret key");
+  command->add_option("--curve-allowed-worker-keys", arguments->curve_allowed_worker_keys_file,
+                      "The broker: file with the workers' public keys, one per line (required "
+                      "with --backend-curve-secret-key)");
   command->callback([&run, arguments] { run = [arguments] { return RunServe(*arguments); }; });
 }
 

@@ -1,0 +1,82 @@
+// `hscloc serve` as a child process for the end-to-end tests (HSCLOC_BINARY, defined by the test
+// target): its output goes to a log, from which the endpoints it printed are read.
+#pragma once
+
+#include <fmt/format.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace hscloc::testing {
+
+// The whole of a text file; empty when it cannot be read.
+inline std::string ReadText(const std::filesystem::path& path) {
+  std::ifstream file(path);
+  return std::string(std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>());
+}
+
+class ServeProcess {
+ public:
+  // Starts `hscloc serve ARGUMENTS...` with stdout and stderr in `log`.
+  ServeProcess(const std::vector<std::string>& arguments, std::filesystem::path log)
+      : log_(std::move(log)) {
+    pid_ = fork();
+    if (pid_ == 0) {
+      freopen(log_.c_str(), "w", stdout);
+      freopen(log_.c_str(), "a", stderr);
+      std::vector<char*> argv = {const_cast<char*>(HSCLOC_BINARY), const_cast<char*>("serve")};
+      for (const std::string& argument : arguments)
+        argv.push_back(const_cast<char*>(argument.c_str()));
+      argv.push_back(nullptr);
+      execv(HSCLOC_BINARY, argv.data());
+      _exit(127);
+    }
+  }
+  ~ServeProcess() { Kill(); }
+  ServeProcess(const ServeProcess&) = delete;
+  ServeProcess& operator=(const ServeProcess&) = delete;
+
+  std::string Log() const { return ReadText(log_); }
+  // The rest of the first log line that starts with `prefix` ("listening on ", "admin on "),
+  // waiting up to a minute for it; empty when it does not come.
+  std::string WaitForLine(const std::string& prefix) const {
+    for (int wait = 0; wait < 600; ++wait) {
+      const std::string log = Log();
+      for (size_t at = log.find(prefix); at != std::string::npos; at = log.find(prefix, at + 1)) {
+        const size_t end = log.find('\n', at);
+        if ((at == 0 || log[at - 1] == '\n') && end != std::string::npos) {
+          return log.substr(at + prefix.size(), end - at - prefix.size());
+        }
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    return "";
+  }
+  void Kill() {
+    if (pid_ <= 0) return;
+    kill(pid_, SIGKILL);
+    waitpid(pid_, nullptr, 0);
+    pid_ = -1;
+  }
+  // SIGTERM, then the exit status (-1 when it did not exit normally).
+  int Terminate() {
+    kill(pid_, SIGTERM);
+    int status = 0;
+    waitpid(pid_, &status, 0);
+    pid_ = -1;
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  }
+
+ private:
+  std::filesystem::path log_;
+  pid_t pid_ = -1;
+};
+
+}  // namespace hscloc::testing
