@@ -72,7 +72,8 @@ struct TrainerOptions {
   bool sparse_node_updates = true;
   // Held-out evaluations over the budget (masked point accuracy on up to
   // evaluation_observations held-out observations); with keep_best the best network is returned
-  // (early stopping: more training never gives a worse network). 0: none.
+  // when the last check fell below it by more than two standard errors of the check (early
+  // stopping: more training never gives a measurably worse network). 0: none.
   int evaluations = 12;
   int64_t evaluation_observations = 3000;
   bool keep_best = true;
