@@ -30,17 +30,19 @@ FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* sl
 
 namespace {
 
-// Candidates per piece of the scores: the [piece, r + 1] gathers and their gradients stay under
-// glibc's largest mmap threshold (32 MiB, model/trainer.cc), so that they are reused from the heap
-// rather than mapped and page-faulted in anew for every step.
-constexpr int64_t kCandidatesPerPiece = int64_t{1} << 17;
+// Bytes of one piece of the scores' gathers: each [piece, r + 1] buffer and its gradient stays
+// under glibc's largest mmap threshold (32 MiB, model/trainer.cc), so that it is reused from the
+// heap rather than mapped and page-faulted in anew at every step.
+constexpr int64_t kPieceBytes = int64_t{16} << 20;
 
 // <point_rows[rank_i], projected[row_i]> for every candidate i, [T].
 torch::Tensor CandidateScores(const torch::Tensor& projected, const torch::Tensor& point_rows,
                               const torch::Tensor& ranks, const torch::Tensor& rows) {
+  const int64_t per_piece = std::max<int64_t>(
+      1024, kPieceBytes / (point_rows.size(1) * static_cast<int64_t>(sizeof(float))));
   std::vector<torch::Tensor> pieces;
-  for (int64_t begin = 0; begin < ranks.size(0); begin += kCandidatesPerPiece) {
-    const int64_t size = std::min(kCandidatesPerPiece, ranks.size(0) - begin);
+  for (int64_t begin = 0; begin < ranks.size(0); begin += per_piece) {
+    const int64_t size = std::min(per_piece, ranks.size(0) - begin);
     const torch::Tensor gathered = point_rows.index_select(0, ranks.narrow(0, begin, size));
     pieces.push_back((gathered * projected.index_select(0, rows.narrow(0, begin, size))).sum(1));
   }
