@@ -232,16 +232,25 @@ TEST_F(SmallCityLocalizerTest, AblationsMoveInTheExpectedDirection) {
       changed_without_image_id +=
           one_without_id.results[q].match_points != one.results[q].match_points;
     }
-    EXPECT_GT(invisible_without_filter, 0u);
-    EXPECT_GT(unfiltered.mean_matches, full.mean_matches);
-    EXPECT_GT(masked_cell.mean_matches, full.mean_matches);
+    if (localizer().map().network()->options().masked_decoding) {
+      // A network trained with the visibility softmax is always decoded with the mask: the
+      // filter and the masked variant find nothing left to change.
+      EXPECT_EQ(invisible_without_filter, 0u);
+      EXPECT_EQ(unfiltered.mean_matches, full.mean_matches);
+      EXPECT_EQ(masked_cell.mean_matches, full.mean_matches);
+    } else {
+      EXPECT_GT(invisible_without_filter, 0u);
+      EXPECT_GT(unfiltered.mean_matches, full.mean_matches);
+      EXPECT_GT(masked_cell.mean_matches, full.mean_matches);
+    }
     EXPECT_GT(changed_without_image_id, full.results.size() / 2);
   }
   EXPECT_GE(Score(results, paper), Score(results, top1));
   EXPECT_GE(Score(results, top1), Score(results, no_image_id.name));
   EXPECT_GE(Score(results, paper), Score(results, no_filter));
-  // Masked decoding keeps the paper's accuracy within a query or two per condition (measured:
-  // day 98%, night 96% within (0.25 m, 2 deg), against 100% and 100%); it is not the default.
+  // Masked decoding keeps the paper's accuracy within a query or two per condition (measured on
+  // a network trained without it: day 98%, night 96% within (0.25 m, 2 deg), against 100% and
+  // 100%).
   for (const std::string& condition : results.conditions) {
     EXPECT_GE(results.At(masked, condition).accuracy.localized_fraction[0],
               results.At(paper, condition).accuracy.localized_fraction[0] - 0.1)
