@@ -45,8 +45,9 @@ def test_localize_batch_writes_in_query_order_with_hlocs_conventions(tmp_path: P
     out = tmp_path / "out" / "submission.txt"
     with FakeServer(answer) as server, Client(server.endpoint, timeout_s=5) as client:
         summary = client.localize_batch(queries, tmp_path / "features.h5", out, inflight=3)
-        # One connection per request in flight.
-        assert 1 < len({call.identity for call in server.received}) <= 3
+        # At most one connection per request in flight (how many of them the batch needed
+        # depends on how fast the answers came).
+        assert 1 <= len({call.identity for call in server.received}) <= 3
     # Keypoints + 0.5 px; descriptors D x N transposed (the second value of descriptor 0 is
     # 3 / 24) and sent as stored (float16, wire type 1); b.jpg refused and not written; c.jpg
     # written and listed.
