@@ -103,9 +103,21 @@ QueryScores ScoreQueries(const fs::path& city_dir, const SyntheticCity& city,
       for (const uint32_t image : images_of_point[points.back()]) ++votes[image];
     }
     if (points.empty()) continue;
-    // Conditioned on the database image that shares the most ground-truth points with the query.
+    // Conditioned on the database image that shares the most ground-truth points with the query,
+    // on the keypoints of points that image observes: the Localizer's visibility filter drops
+    // every other match to it, and masked decoding could not reach them.
     const uint32_t image =
         static_cast<uint32_t>(std::max_element(votes.begin(), votes.end()) - votes.begin());
+    size_t kept = 0;
+    for (size_t i = 0; i < points.size(); ++i) {
+      if (!map.visibility().IsVisible(image, points[i])) continue;
+      points[kept] = points[i];
+      rows[kept] = rows[i];
+      ++kept;
+    }
+    points.resize(kept);
+    rows.resize(kept);
+    if (points.empty()) continue;
     DescriptorMatrix descriptors(points.size(), scene.Dimension());
     for (size_t i = 0; i < points.size(); ++i) {
       descriptors.row(i) = query_features.descriptors.row(rows[i]).normalized();
@@ -148,7 +160,7 @@ TEST(NetworkAccuracyTest, ImageConditioningResolvesRepeatedStructure) {
         QueryConditionName(condition), s.unique.keypoints, s.unique.Hsc(), s.unique.Masked(),
         s.unique.Nn(), s.ambiguous.keypoints, s.ambiguous.Hsc(), s.ambiguous.Masked(),
         s.ambiguous.Nn());
-    ASSERT_GT(s.ambiguous.keypoints, 2000u);
+    ASSERT_GT(s.ambiguous.keypoints, 1500u);
     ASSERT_GT(s.unique.keypoints, 2000u);
     const std::string name = QueryConditionName(condition);
     // The network as the Localizer decodes it: with the visibility mask when it was trained so.

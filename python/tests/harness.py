@@ -51,7 +51,7 @@ def serve(tools: Tools, map_dir: Path, log: Path, *arguments: object) -> Iterato
     with open(log, "w") as log_file:
         server = subprocess.Popen(
             [str(tools.hscloc), "serve", "--map", str(map_dir), "--bind", "tcp://127.0.0.1:0",
-             "--workers", "2", *map(str, arguments)],
+             "--admin-bind", "tcp://127.0.0.1:0", "--workers", "2", *map(str, arguments)],
             stdout=subprocess.PIPE, stderr=log_file, text=True)
     lines: queue.Queue = queue.Queue()
 
