@@ -1,0 +1,116 @@
+// A trained network after training: its accuracy on observations (each conditioned on its own
+// image), and its place in the map bundle (model/trainer.h).
+#include <algorithm>
+#include <nlohmann/json.hpp>
+#include <vector>
+
+#include "map/map_blobs.h"
+#include "map/map_bundle.h"
+#include "model/trainer.h"
+#include "util/check.h"
+#include "util/timer.h"
+
+namespace hscloc {
+
+NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, const LabelTree& tree,
+                                  const std::vector<uint32_t>& observation_indices,
+                                  const Visibility* visibility_mask) {
+  Timer timer;
+  const int levels = tree.levels();
+  std::vector<std::vector<uint32_t>> by_image(scene.NumImages());
+  for (const uint32_t observation : observation_indices) {
+    THROW_CHECK_LT(size_t{observation}, scene.NumObservations());
+    by_image[scene.observation_image_indices[observation]].push_back(observation);
+  }
+  NetworkEvaluation evaluation;
+  evaluation.num_observations = observation_indices.size();
+  std::vector<size_t> correct_levels(levels, 0);
+  size_t correct_points = 0;
+  for (uint32_t image = 0; image < by_image.size(); ++image) {
+    const std::vector<uint32_t>& observations = by_image[image];
+    if (observations.empty()) continue;
+    DescriptorMatrix descriptors(observations.size(), scene.Dimension());
+    for (size_t i = 0; i < observations.size(); ++i) {
+      descriptors.row(i) = scene.observation_descriptors.row(observations[i]);
+    }
+    const PointPredictions predictions =
+        network.Predict(descriptors, {image}, tree, visibility_mask);
+    for (size_t i = 0; i < observations.size(); ++i) {
+      const uint32_t point = scene.observation_point_indices[observations[i]];
+      const LabelTree::Label* truth = tree.LabelsOfPoint(point);
+      for (int level = 0; level < levels && predictions.labels(i, level) == truth[level]; ++level) {
+        ++correct_levels[level];
+      }
+      if (predictions.point_indices(0, i) == point) ++correct_points;
+    }
+  }
+  const double count = std::max<double>(1, evaluation.num_observations);
+  for (const size_t correct : correct_levels)
+    evaluation.level_accuracies.push_back(correct / count);
+  evaluation.leaf_accuracy = correct_points / count;
+  evaluation.seconds = timer.ElapsedSeconds();
+  return evaluation;
+}
+
+void WriteNetworkToBundle(
+    const std::filesystem::path& bundle_dir, const TrainingResult& result,
+    const TrainerOptions& options,
+    const std::vector<std::pair<std::string, NetworkEvaluation>>& evaluations) {
+  MapBundleWriter writer = MapBundleWriter::Update(bundle_dir);
+  writer.AddBlob(map_blobs::kNetwork, [&](std::ostream& stream) { result.network.Save(stream); });
+  const std::string csv = result.LogCsv();
+  writer.AddBlob(map_blobs::kTrainingLog,
+                 [&](std::ostream& stream) { stream.write(csv.data(), csv.size()); });
+
+  const NetworkShape& shape = result.network.shape();
+  const NetworkOptions& network_options = result.network.options();
+  nlohmann::json json;
+  json["shape"] = {{"descriptor_dim", shape.descriptor_dim},
+                   {"levels", shape.levels},
+                   {"branching", shape.branching},
+                   {"num_images", shape.num_images}};
+  json["options"] = {{"channels", network_options.channels},
+                     {"trunk_channels", network_options.trunk_channels},
+                     {"embedding_dim", network_options.embedding_dim},
+                     {"conditioned_layers", network_options.conditioned_layers},
+                     {"node_conditioning", network_options.node_conditioning},
+                     {"node_output_dim", network_options.node_output_dim},
+                     {"pooled_point_rows", network_options.pooled_point_rows},
+                     {"masked_decoding", network_options.masked_decoding}};
+  json["parameters"] = result.network.NumParameters();
+  json["training"] = {
+      {"iterations", result.iterations},
+      {"seconds", result.seconds},
+      {"final_loss", result.final_loss},
+      {"final_level_accuracies", result.final_level_accuracies},
+      {"batch_size", options.batch_size},
+      {"learning_rate", options.learning_rate},
+      {"halving_fractions", options.halving_fractions},
+      {"schedule", options.schedule == LearningRateSchedule::kOneCycle ? "one_cycle" : "halving"},
+      {"visibility_softmax", options.visibility_softmax},
+      {"best_iteration", result.best_iteration},
+      {"best_held_out_accuracy", result.best_held_out_accuracy},
+      {"converged", result.converged},
+      {"augmentation",
+       {{"enabled", options.augmentation.enabled},
+        {"noise_norm", options.augmentation.noise_norm},
+        {"dimension_dropout", options.augmentation.dimension_dropout}}},
+      {"image_dropout", options.image_dropout},
+      {"seed", options.seed},
+      {"holdout_fraction", options.holdout_fraction},
+      {"holdout_seed", options.holdout_seed},
+      {"training_observations", result.num_training_observations},
+      {"held_out_observations", result.num_held_out_observations},
+      {"device", ComputeDeviceName(options.device)}};
+  nlohmann::json evaluation_json = nlohmann::json::object();
+  for (const auto& [name, evaluation] : evaluations) {
+    evaluation_json[name] = {{"observations", evaluation.num_observations},
+                             {"level_accuracies", evaluation.level_accuracies},
+                             {"leaf_accuracy", evaluation.leaf_accuracy}};
+  }
+  json["evaluations"] = evaluation_json;
+  writer.metadata()[map_metadata::kNetwork] = json;
+  writer.Commit();
+}
+
+}  // namespace hscloc
