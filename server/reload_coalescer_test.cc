@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <future>
+#include <thread>
 
 namespace hscloc {
 namespace {
@@ -66,6 +67,10 @@ TEST(ReloadCoalescerTest, StopWaitsForTheRunningReloadAndCancelsTheWaitingOnes) 
   gated.started.get_future().wait();
   for (int i = 0; i < 10; ++i) ASSERT_TRUE(coalescer.Request(count));
   std::thread stopper([&] { coalescer.Stop(); });
+  // The gate opens only once Stop has begun (requests are refused), so the running reload cannot
+  // finish first and start another for the waiting ones. Probes accepted before that are
+  // cancelled with them, apart from the count.
+  while (coalescer.Request([](const ReloadOutcome&) {})) std::this_thread::yield();
   open.set_value();
   stopper.join();
   EXPECT_EQ(succeeded.load(), 1);
