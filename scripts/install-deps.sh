@@ -6,10 +6,10 @@ set -euo pipefail
 packages=(
   build-essential cmake ninja-build ccache pkg-config git
   libeigen3-dev libopencv-dev libceres-dev libfaiss-dev libtorch-dev
-  libzmq3-dev cppzmq-dev libprotobuf-dev protobuf-compiler
+  libzmq3-dev cppzmq-dev libprotobuf-dev protobuf-compiler prometheus-cpp-dev
   libhdf5-dev libsqlite3-dev sqlite3 libssl-dev libcli11-dev libspdlog-dev libfmt-dev nlohmann-json3-dev
   libopenblas0-pthread
-  libgtest-dev libgmock-dev libbenchmark-dev python3 python3-yaml
+  libgtest-dev libgmock-dev libbenchmark-dev python3 python3-yaml prometheus
   python3-zmq python3-protobuf python3-numpy python3-h5py python3-pytest
   colmap
 )

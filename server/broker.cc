@@ -116,6 +116,7 @@ void Broker::OpenSockets() {
 
 std::pair<std::string, std::string> Broker::Start() {
   THROW_CHECK_MSG(state_ == nullptr, "Broker: started twice");
+  metrics_ = std::make_unique<BrokerMetrics>(options_.metrics_bind);
   state_ = std::make_unique<State>();
   try {
     OpenSockets();
@@ -181,6 +182,7 @@ void Broker::Loop() {
                                                                 "retry later",
                                                                 options_.max_queue))
                         .SerializeAsString();
+    metrics_->CountOverloaded();
     SendFrames(state_->front, frames);
   };
 
@@ -202,7 +204,10 @@ void Broker::Loop() {
           worker->second.slots =
               std::max(1, std::atoi(frames[1].c_str() + std::strlen(kWorkerReady)));
           worker->second.expiry = now + liveness;
-          if (is_new) spdlog::info("broker: worker joined with {} slots", worker->second.slots);
+          if (is_new) {
+            spdlog::info("broker: worker joined with {} slots", worker->second.slots);
+            metrics_->CountWorkerJoined();
+          }
         } else if (frames.size() >= 4) {
           // A reply: worker id, sequence, the client's envelope, payload.
           auto worker = workers.find(id);
@@ -212,6 +217,7 @@ void Broker::Loop() {
           }
           const uint64_t sequence = std::strtoull(frames[1].c_str(), nullptr, 10);
           if (in_flight.erase(sequence) > 0) {
+            metrics_->CountAnswered();
             SendFrames(state_->front, std::vector<std::string>(frames.begin() + 2, frames.end()));
           }
           // Else a late duplicate of a request already answered by another worker: dropped.
@@ -250,6 +256,7 @@ void Broker::Loop() {
       }
       retried_ += orphans.size();
       ++dropped_;
+      metrics_->CountWorkerDropped(orphans.size());
       spdlog::warn("broker: a worker missed its heartbeats; {} of its requests go to others",
                    orphans.size());
       worker = workers.erase(worker);
@@ -273,6 +280,11 @@ void Broker::Loop() {
       ++best->second.busy;
       in_flight.emplace(pending.sequence, std::make_pair(std::move(pending), best->first));
     }
+
+    size_t slots = 0;
+    for (const auto& [id, worker] : workers) slots += static_cast<size_t>(worker.slots);
+    metrics_->SetWorkers(workers.size(), slots);
+    metrics_->SetQueue(queue.size(), in_flight.size());
 
     if (now >= next_heartbeat) {
       for (const auto& [id, worker] : workers) SendFrames(state_->back, {id, kHeartbeat});

@@ -18,6 +18,8 @@
 #include <thread>
 #include <vector>
 
+#include "server/metrics.h"
+
 namespace hscloc {
 
 // Control messages between broker and workers are single frames; requests and replies always
@@ -30,6 +32,8 @@ struct BrokerOptions {
   std::string back = "tcp://*:5556";   // workers
   // The broker's own Health; loopback or ipc:// (ServiceOptions.admin_bind). Empty: none.
   std::string admin_bind = "tcp://127.0.0.1:5557";
+  // Prometheus metrics ("host:port"; ServiceOptions.metrics_bind). Empty: not exposed.
+  std::string metrics_bind;
   size_t max_queue = 256;  // waiting requests beyond which OVERLOADED is answered
   std::chrono::milliseconds heartbeat_interval{500};
   int heartbeat_liveness = 4;  // missed heartbeats after which a worker is dropped
@@ -55,6 +59,8 @@ class Broker {
   std::pair<std::string, std::string> Start();
   // The admin endpoint as bound (its real port), or empty when there is none.
   const std::string& admin_endpoint() const { return admin_endpoint_; }
+  // The metrics' URL as bound, or empty when they are not exposed.
+  std::string metrics_url() const { return metrics_ == nullptr ? "" : metrics_->url(); }
   // Stops forwarding and closes the sockets. Idempotent.
   void Stop();
 
@@ -69,6 +75,7 @@ class Broker {
   void AnswerAdmin(size_t workers);
 
   BrokerOptions options_;
+  std::unique_ptr<BrokerMetrics> metrics_;
   std::unique_ptr<State> state_;
   std::string admin_endpoint_;
   double started_s_ = 0;

@@ -109,5 +109,39 @@ TEST(BrokerTest, SecurityOptionsThatCannotBeHonouredAreRefused) {
               HasSubstr("a worker (--connect) admits no clients"));
 }
 
+TEST(BrokerTest, MetricsCountWorkersJoinedAndDroppedAndTheRequestsAnswered) {
+  HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
+  BrokerOptions options = LoopbackBrokerOptions();
+  options.metrics_bind = "127.0.0.1:0";
+  Broker broker(options);
+  const auto [front, back] = broker.Start();
+  ServiceOptions worker_options = LoopbackServiceOptions(back);
+  worker_options.metrics_bind = "127.0.0.1:0";
+  LocalizationService worker(dir / "map", worker_options);
+  worker.Start();
+  LocalizationClient client(PatientClientOptions(front));
+  for (int i = 0; i < 5; ++i) EXPECT_EQ(client.Info().map_id(), "map") << i;
+
+  std::string text = testing::HttpGet(broker.metrics_url());
+  EXPECT_EQ(testing::MetricSample(text, "hscloc_broker_workers_joined_total"), 1);
+  EXPECT_EQ(testing::MetricSample(text, R"(hscloc_broker_requests_total{outcome="answered"})"), 5);
+  EXPECT_EQ(testing::MetricSample(text, "hscloc_broker_workers"), 1);
+  EXPECT_EQ(testing::MetricSample(text, "hscloc_broker_worker_slots"), 1);
+  EXPECT_EQ(testing::MetricSample(testing::HttpGet(worker.metrics_url()),
+                                  R"(hscloc_requests_total{kind="info",status="OK"})"),
+            5);
+
+  // A worker that stops heartbeating is dropped after heartbeat_liveness intervals (400 ms).
+  worker.Stop();
+  for (int wait = 0; wait < 100; ++wait) {
+    text = testing::HttpGet(broker.metrics_url());
+    if (testing::MetricSample(text, "hscloc_broker_workers_dropped_total") == 1) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  EXPECT_EQ(testing::MetricSample(text, "hscloc_broker_workers_dropped_total"), 1);
+  EXPECT_EQ(testing::MetricSample(text, "hscloc_broker_workers"), 0);
+  EXPECT_EQ(testing::MetricSample(text, "hscloc_broker_requests_retried_total"), 0);
+}
+
 }  // namespace
 }  // namespace hscloc

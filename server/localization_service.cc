@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <optional>
 #include <zmq.hpp>
 #include <zmq_addon.hpp>
 
@@ -35,6 +36,7 @@ struct LocalizationService::Job {
   std::vector<zmq::message_t> envelope;  // routing identity (and a REQ client's empty delimiter)
   wire::Request request;
   Timer received;
+  double queue_seconds = 0;  // from receipt until a worker took it
 };
 
 struct LocalizationService::Serving {
@@ -179,6 +181,8 @@ void LocalizationService::OpenSockets() {
 
 std::string LocalizationService::Start() {
   THROW_CHECK_MSG(zmq_ == nullptr, "LocalizationService: started twice");
+  metrics_ = std::make_unique<ServiceMetrics>(options_.metrics_bind);
+  metrics_->SetWorkers(num_workers_);
   zmq_ = std::make_unique<ZmqState>();
   zmq_->context = zmq::context_t(1);
   try {
@@ -193,8 +197,9 @@ std::string LocalizationService::Start() {
     workers_.emplace_back([this, worker] { WorkerLoop(worker); });
   }
   front_thread_ = std::thread([this] { FrontLoop(); });
-  spdlog::info("loading {} (public endpoint {}, admin endpoint {})", map_dir_.string(), endpoint_,
-               admin_endpoint_.empty() ? "none" : admin_endpoint_);
+  spdlog::info("loading {} (public endpoint {}, admin endpoint {}, metrics {})", map_dir_.string(),
+               endpoint_, admin_endpoint_.empty() ? "none" : admin_endpoint_,
+               metrics_->url().empty() ? "not exposed" : metrics_->url());
   const ReloadOutcome loaded = reloader_->RequestAndWait();
   if (!loaded.success) {
     Stop();
@@ -261,6 +266,8 @@ wire::Response LocalizationService::InfoReply() const {
 }
 
 void LocalizationService::Reply(const Job& job, const wire::Response& response) {
+  // Counted first, so that a client holding its reply finds it counted.
+  metrics_->CountReply(job.request, response.status());
   SendReply(job.origin == Origin::kAdmin ? zmq_->admin : zmq_->router, job.envelope, response);
   ++answered_;
 }
@@ -279,10 +286,13 @@ void LocalizationService::ForwardReply() {
 // Queues a reply on the replies channel (from a worker or the reload thread).
 void LocalizationService::PushReply(zmq::socket_t& push, const Job& job,
                                     const wire::Response& response) {
+  metrics_->CountReply(job.request, response.status());
   const char origin = static_cast<char>(job.origin);
   push.send(zmq::message_t(&origin, 1), zmq::send_flags::sndmore);
   SendReply(push, job.envelope, response);
 }
+
+void LocalizationService::UpdateQueueMetrics() { metrics_->SetQueue(queue_.size(), running_); }
 
 void LocalizationService::AcceptReload(std::unique_ptr<Job> job, bool admin) {
   if (!admin) {
@@ -326,6 +336,7 @@ void LocalizationService::AcceptLocalize(std::unique_ptr<Job> job) {
                      fmt::format("{} requests are waiting; retry later", options_.max_queue)));
   } else {
     queue_.push_back(std::move(job));
+    UpdateQueueMetrics();
     lock.unlock();
     queue_ready_.notify_one();
   }
@@ -432,6 +443,7 @@ void LocalizationService::RefuseLateRequests(zmq::socket_t& socket) {
     wire::Request request;
     request.ParseFromArray(frames.back().data(), static_cast<int>(frames.back().size()));
     frames.pop_back();
+    metrics_->CountReply(request, wire::UNAVAILABLE);
     SendReply(socket, frames,
               RefusalFor(request, wire::UNAVAILABLE, "the server is shutting down"));
     ++answered_;
@@ -450,10 +462,13 @@ void LocalizationService::WorkerLoop(int worker) {
       job = std::move(queue_.front());
       queue_.pop_front();
       ++running_;
+      UpdateQueueMetrics();
     }
+    job->queue_seconds = job->received.ElapsedSeconds();
     PushReply(push, *job, Localize(*job, worker));
     std::lock_guard<std::mutex> lock(queue_mutex_);
     --running_;
+    UpdateQueueMetrics();
   }
 }
 
@@ -463,6 +478,7 @@ wire::Response LocalizationService::Localize(const Job& job, int worker) const {
   wire::LocalizeResponse* localize = response.mutable_localize();
   localize->set_request_id(request.request_id());
   const std::shared_ptr<const Serving> serving = CurrentServing();
+  std::optional<StageTimings> timings;
   try {
     if (!request.map_id().empty() && request.map_id() != serving->map_id) {
       ThrowInvalidArgument("map '{}' requested, this server serves '{}'", request.map_id(),
@@ -472,6 +488,7 @@ wire::Response LocalizationService::Localize(const Job& job, int worker) const {
     const LocalizerOptions options =
         OptionsFromWire(request.options(), options_.localizer, options_.limits);
     const PoseResult result = serving->localizer->Localize(query, options);
+    timings = result.timings;
     PoseResultToWire(result, serving->localizer->map().scene(), localize);
     response.set_status(wire::OK);
   } catch (const std::invalid_argument& error) {
@@ -486,6 +503,7 @@ wire::Response LocalizationService::Localize(const Job& job, int worker) const {
   }
   const double server_ms = job.received.ElapsedMilliseconds();
   localize->mutable_timings()->set_server_ms(server_ms);
+  if (timings) metrics_->ObserveLocalize(*timings, job.queue_seconds, server_ms * 1e-3);
   spdlog::info("request {} worker {} {}: {} keypoints, {} inliers, {:.1f} ms{}",
                request.request_id(), worker, StatusName(localize->status()),
                request.num_keypoints(), localize->num_inliers(), server_ms,
@@ -526,6 +544,7 @@ void LocalizationService::RequestReload() {
 
 ReloadOutcome LocalizationService::LoadMap() {
   ReloadOutcome outcome;
+  const Timer load_time;
   try {
     auto serving = std::make_shared<Serving>();
     serving->localizer = std::make_shared<const Localizer>(
@@ -535,13 +554,16 @@ ReloadOutcome LocalizationService::LoadMap() {
     std::lock_guard<std::mutex> lock(serving_mutex_);
     serving_ = std::move(serving);
     outcome.success = true;
-    spdlog::info("loaded and verified map {} from {}", outcome.map_id, map_dir_.string());
+    metrics_->SetMap(outcome.map_id, load_time.ElapsedSeconds());
+    spdlog::info("loaded and verified map {} from {} in {:.2f} s", outcome.map_id,
+                 map_dir_.string(), load_time.ElapsedSeconds());
   } catch (const std::exception& error) {
     outcome.error_message = error.what();
     outcome.map_id = map_id();
     spdlog::error("loading {} failed{}: {}", map_dir_.string(),
                   outcome.map_id.empty() ? "" : ", the previous map keeps serving", error.what());
   }
+  metrics_->CountMapLoad(outcome.success);
   return outcome;
 }
 

@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "localization/localizer.h"
+#include "server/metrics.h"
 #include "server/reload_coalescer.h"
 #include "server/wire.h"
 
@@ -46,6 +47,9 @@ struct ServiceOptions {
   // Reload and this process's own Health (its probes) are answered here; keep it on loopback or
   // an ipc:// path, since whoever reaches it may reload the map. Empty: no admin endpoint.
   std::string admin_bind = "tcp://127.0.0.1:5557";
+  // Prometheus metrics over HTTP at http://<metrics_bind>/metrics ("host:port", port 0: a free
+  // one; server/metrics.h lists them). Empty: counted, not exposed.
+  std::string metrics_bind;
   // When set, the service does not bind: it works for the broker at this endpoint
   // (server/broker.h), announcing its worker count and heartbeating every heartbeat_interval.
   std::string connect;
@@ -96,6 +100,8 @@ class LocalizationService {
   std::string map_id() const;
   // The admin endpoint as bound (its real port), or empty when there is none.
   const std::string& admin_endpoint() const { return admin_endpoint_; }
+  // The metrics' URL as bound (http://host:port/metrics), or empty when they are not exposed.
+  std::string metrics_url() const { return metrics_ == nullptr ? "" : metrics_->url(); }
   size_t requests_answered() const { return answered_.load(); }
   // Loads of the map directory so far, the first one included.
   size_t reloads_executed() const;
@@ -116,6 +122,7 @@ class LocalizationService {
   void AcceptLocalize(std::unique_ptr<Job> job);
   void Reply(const Job& job, const wire::Response& response);
   void PushReply(zmq::socket_t& push, const Job& job, const wire::Response& response);
+  void UpdateQueueMetrics();  // with queue_mutex_ held
   void ForwardReply();
   void RefuseLateRequests(zmq::socket_t& socket);
   Readiness CurrentReadiness() const;
@@ -141,6 +148,7 @@ class LocalizationService {
   std::atomic<bool> stopping_{false};
   std::atomic<bool> front_done_{false};
   std::atomic<size_t> answered_{0};
+  std::unique_ptr<ServiceMetrics> metrics_;  // before the threads that update it
   std::unique_ptr<struct ZmqState> zmq_;
   std::unique_ptr<ReloadCoalescer> reloader_;
   std::thread front_thread_;

@@ -14,6 +14,7 @@
 #include "client/localization_client.h"
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
+#include "server/loopback_testing.h"
 #include "util/random.h"
 #include "util/testing.h"
 
@@ -117,6 +118,50 @@ TEST_F(LocalizationServiceTest, AnswersAsTheInProcessLocalizer) {
   // float16 descriptors localize too.
   const wire::LocalizeResponse half = client.Localize(RequestOf(Queries()[0], true));
   EXPECT_EQ(half.status(), wire::OK);
+}
+
+TEST_F(LocalizationServiceTest, MetricsCountTheRepliesAndTimeTheStages) {
+  HSCLOC_REQUIRE_PROMTOOL(promtool);
+  ServiceOptions options = LoopbackOptions();
+  options.metrics_bind = "127.0.0.1:0";
+  LocalizationService service(MapDir(), options);
+  const std::string endpoint = service.Start();
+  LocalizationClient client(ClientFor(endpoint));
+  EXPECT_EQ(client.Health().status(), wire::OK);
+  int localized = 0;
+  for (int i = 0; i < 3; ++i) {
+    wire::LocalizeRequest request = RequestOf(Queries()[i], true, 200);
+    request.mutable_options()->set_top_k(2);
+    localized += client.Localize(request).status() == wire::OK;
+  }
+  wire::LocalizeRequest invalid = RequestOf(Queries()[0], true, 200);
+  invalid.set_descriptor_dim(128);
+  EXPECT_EQ(client.Localize(invalid).status(), wire::INVALID_REQUEST);
+
+  const std::string text = testing::HttpGet(service.metrics_url());
+  const auto sample = [&](const std::string& series) {
+    return testing::MetricSample(text, series).value_or(0);
+  };
+  EXPECT_EQ(sample(R"(hscloc_requests_total{kind="localize",status="OK"})"), localized);
+  EXPECT_EQ(sample(R"(hscloc_requests_total{kind="localize",status="NOT_LOCALIZED"})"),
+            3 - localized);
+  EXPECT_EQ(sample(R"(hscloc_requests_total{kind="localize",status="INVALID_REQUEST"})"), 1);
+  EXPECT_EQ(sample(R"(hscloc_requests_total{kind="health",status="OK"})"), 1);
+  // The stages of the three requests the Localizer ran, none of the refused one.
+  for (const std::string stage : {"queue", "retrieval", "match", "pose", "server"}) {
+    EXPECT_EQ(sample(R"(hscloc_localize_duration_seconds_count{stage=")" + stage + R"("})"), 3)
+        << stage;
+  }
+  EXPECT_GT(sample(R"(hscloc_localize_duration_seconds_sum{stage="match"})"), 0);
+  EXPECT_EQ(sample(R"(hscloc_map_info{map_id="map"})"), 1);
+  EXPECT_EQ(sample(R"(hscloc_map_loads_total{outcome="success"})"), 1);
+  EXPECT_GT(sample("hscloc_map_load_seconds"), 0);
+  EXPECT_EQ(sample("hscloc_queue_depth"), 0);
+  EXPECT_EQ(sample("hscloc_workers"), 2);
+  testing::TempDir dir;
+  std::ofstream(dir / "metrics.txt") << text;
+  EXPECT_EQ(testing::RunCommand(promtool + " check metrics < " + (dir / "metrics.txt").string()),
+            0);
 }
 
 TEST_F(LocalizationServiceTest, EightConcurrentClientsAreAllAnswered) {

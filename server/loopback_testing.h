@@ -1,15 +1,21 @@
 // Test support for the service and the broker over real sockets: options bound to free loopback
-// ports, clients that wait long and never retry, and a map whose loading the test holds.
+// ports, clients that wait long and never retry, a map whose loading the test holds, and scrapes
+// of the metrics endpoint.
 #pragma once
 
+#include <arpa/inet.h>
 #include <fcntl.h>
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <optional>
+#include <sstream>
 #include <string>
 
 #include "client/localization_client.h"
@@ -51,6 +57,70 @@ inline ClientOptions PatientClientOptions(const std::string& endpoint, int timeo
 // An ipc:// endpoint of this process; short, since a socket path holds at most 107 characters.
 inline std::string IpcEndpoint(const std::string& name) {
   return "ipc:///tmp/hscloc-" + std::to_string(getpid()) + "-" + name;
+}
+
+// What the HTTP server at `url` ("http://host:port/path", an IPv4 host) answers `request`, sent as
+// is; "{path}" in it stands for the URL's path. Fails the test (and returns "") when it cannot
+// connect.
+inline std::string HttpExchange(const std::string& url, const std::string& request) {
+  const std::string scheme = "http://";
+  const size_t host_end = url.find(':', scheme.size());
+  const size_t port_end = url.find('/', scheme.size());
+  if (url.rfind(scheme, 0) != 0 || host_end == std::string::npos || port_end == std::string::npos) {
+    ADD_FAILURE() << "not an http://host:port/path URL: " << url;
+    return "";
+  }
+  const std::string host = url.substr(scheme.size(), host_end - scheme.size());
+  sockaddr_in address{};
+  address.sin_family = AF_INET;
+  address.sin_port = htons(static_cast<uint16_t>(std::stoi(url.substr(host_end + 1))));
+  if (inet_pton(AF_INET, host.c_str(), &address.sin_addr) != 1) {
+    ADD_FAILURE() << "not an IPv4 address: " << host;
+    return "";
+  }
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  if (connect(fd, reinterpret_cast<const sockaddr*>(&address), sizeof(address)) != 0) {
+    close(fd);
+    ADD_FAILURE() << "cannot connect to " << url;
+    return "";
+  }
+  std::string text = request;
+  if (const size_t at = text.find("{path}"); at != std::string::npos) {
+    text.replace(at, 6, url.substr(port_end));
+  }
+  EXPECT_EQ(write(fd, text.data(), text.size()), static_cast<ssize_t>(text.size()));
+  std::string response;
+  char buffer[4096];
+  for (ssize_t n; (n = read(fd, buffer, sizeof(buffer))) > 0;) response.append(buffer, n);
+  close(fd);
+  return response;
+}
+
+// The body of an HTTP GET of `url`; fails the test (and returns "") on any error or a status
+// other than 200.
+inline std::string HttpGet(const std::string& url) {
+  const std::string response = HttpExchange(url, "GET {path} HTTP/1.0\r\n\r\n");
+  const size_t body = response.find("\r\n\r\n");
+  if (response.rfind("HTTP/1.1 200", 0) != 0) {
+    ADD_FAILURE() << "GET " << url << " answered: " << response.substr(0, body);
+    return "";
+  }
+  return body == std::string::npos ? "" : response.substr(body + 4);
+}
+
+// The value of the sample `series` (a metric name with its labels in the exposition's order,
+// e.g. hscloc_requests_total{kind="localize",status="OK"}) in a Prometheus text exposition, or
+// nullopt when it is absent.
+inline std::optional<double> MetricSample(const std::string& exposition,
+                                          const std::string& series) {
+  std::istringstream lines(exposition);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.size() > series.size() && line.compare(0, series.size(), series) == 0 &&
+        line[series.size()] == ' ') {
+      return std::stod(line.substr(series.size() + 1));
+    }
+  }
+  return std::nullopt;
 }
 
 // A copy of a map bundle whose manifest is a named pipe: loading it blocks in open() until

@@ -2,8 +2,9 @@
 """Checks deploy/: the Kubernetes manifests and compose file parse and hold what an operator
 relies on (probes, resource requests, the autoscaler, the map volume), every process they start
 runs with CURVE (keys from a Secret) and is probed on its own admin endpoint, never through a
-Service, the processes use the arguments deploy/smoke.sh exercises, and the systemd unit has its
-hardening and uses its admin endpoint.
+Service, exposes its metrics where Prometheus scrapes them, the autoscaler scales on the broker's
+queue beside CPU, the processes use the arguments deploy/smoke.sh exercises, and the systemd unit
+has its hardening and uses its admin endpoint.
 Usage: check_deploy.py DEPLOY_DIR"""
 import configparser
 import pathlib
@@ -66,6 +67,21 @@ def check_curve(where, role, args, key_dirs):
                   f"{where}: {flag} {value} is not on a volume of keys from a Secret")
 
 
+def check_metrics(where, args, ports, annotations):
+    """The process serves its metrics on every interface, on a port the pod opens and names in its
+    scrape annotations."""
+    bind = flag_value(args, "--metrics-bind") or ""
+    host, _, port = bind.rpartition(":")
+    check(host == "0.0.0.0" and port.isdigit(),
+          f"{where}: --metrics-bind {bind!r} is not reachable by Prometheus")
+    if ports is not None:
+        check(port.isdigit() and int(port) in ports, f"{where}: the metrics port is not opened")
+    if annotations is not None:
+        check(annotations.get("prometheus.io/scrape") == "true" and
+              annotations.get("prometheus.io/port") == port,
+              f"{where}: the pod's annotations do not point Prometheus at port {port}")
+
+
 services = [d["metadata"]["name"] for _, d in documents if d["kind"] == "Service"]
 smoke = (deploy / "smoke.sh").read_text()
 arguments = {}
@@ -87,6 +103,8 @@ for name, document in documents:
         key_dirs = [m["mountPath"] for m in container.get("volumeMounts", [])
                     if m["name"] in secret_volumes]
         check_curve(where, container["name"], args, key_dirs)
+        check_metrics(where, args, [p["containerPort"] for p in container.get("ports", [])],
+                      document["spec"]["template"]["metadata"].get("annotations", {}))
         arguments[container["name"]] = args
         # Every flag the manifest passes is one the smoke test passes too.
         for flag in (a for a in args if a.startswith("--")):
@@ -96,6 +114,10 @@ check("--connect" in arguments.get("worker", []), "kubernetes: workers do not --
 hpa = [d for _, d in documents if d["kind"] == "HorizontalPodAutoscaler"]
 check(hpa and hpa[0]["spec"]["scaleTargetRef"]["name"] == "hscloc-worker",
       "the autoscaler does not scale the workers")
+scaled_on = {m.get("resource", m.get("external", {}).get("metric", {})).get("name")
+             for m in (hpa[0]["spec"].get("metrics", []) if hpa else [])}
+check({"cpu", "hscloc_broker_queue_depth"} <= scaled_on,
+      f"the autoscaler scales on {sorted(map(str, scaled_on))}, not on CPU and the broker's queue")
 
 compose = yaml.safe_load((deploy / "compose.yaml").read_text())
 check(set(compose["services"]) >= {"broker", "worker", "batch"},
@@ -104,6 +126,7 @@ check(compose["services"]["worker"]["deploy"]["replicas"] == 2, "compose: two wo
 for role in ("broker", "worker"):
     service = compose["services"][role]
     check_curve(f"compose {role}", role, service["command"], ["/run/secrets"])
+    check_metrics(f"compose {role}", service["command"], None, None)
     healthcheck = service.get("healthcheck", {}).get("test", [])[1:]
     check(bool(healthcheck), f"compose {role}: no healthcheck")
     if healthcheck:

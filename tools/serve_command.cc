@@ -100,6 +100,7 @@ int RunBroker(const ServeArguments& arguments) {
   options.front = arguments.options.bind;
   options.back = arguments.backend;
   options.admin_bind = arguments.options.admin_bind;
+  options.metrics_bind = arguments.options.metrics_bind;
   options.max_queue = arguments.options.max_queue;
   options.curve_secret_key = ReadOptionalKey(arguments.curve_secret_key_file);
   options.curve_allowed_client_keys = ReadKeyList(arguments.curve_allowed_keys_file);
@@ -109,8 +110,9 @@ int RunBroker(const ServeArguments& arguments) {
   Broker broker(options);
   const auto [front, back] = broker.Start();
   std::cout << fmt::format("broker listening on {} (clients) and {} (workers)\nadmin on {}\n",
-                           front, back, broker.admin_endpoint())
-            << std::flush;
+                           front, back, broker.admin_endpoint());
+  if (!broker.metrics_url().empty()) std::cout << "metrics on " << broker.metrics_url() << "\n";
+  std::cout << std::flush;
   while (true) {
     int signal = 0;
     if (sigwait(&signals, &signal) != 0 || signal == SIGHUP) continue;
@@ -137,8 +139,9 @@ int RunServe(ServeArguments& arguments) {
 
   LocalizationService service(arguments.map_dir, options);
   const std::string endpoint = service.Start();
-  std::cout << fmt::format("listening on {}\nadmin on {}\n", endpoint, service.admin_endpoint())
-            << std::flush;
+  std::cout << fmt::format("listening on {}\nadmin on {}\n", endpoint, service.admin_endpoint());
+  if (!service.metrics_url().empty()) std::cout << "metrics on " << service.metrics_url() << "\n";
+  std::cout << std::flush;
   while (true) {
     int signal = 0;
     if (sigwait(&signals, &signal) != 0) continue;
@@ -168,6 +171,11 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
       ->add_option("--admin-bind", options.admin_bind,
                    "Endpoint of this process's Reload and probes (Health); loopback or ipc:// "
                    "only, since whoever reaches it may reload ('': none)")
+      ->capture_default_str();
+  command
+      ->add_option("--metrics-bind", options.metrics_bind,
+                   "host:port of the Prometheus metrics (http://host:port/metrics; port 0: any "
+                   "free port; '': none)")
       ->capture_default_str();
   command->add_flag("--broker", arguments->broker,
                     "Run as the broker: clients on --bind, workers on --backend");

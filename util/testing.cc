@@ -55,6 +55,12 @@ std::optional<std::string> ColmapExecutable() {
   return std::string(path);
 }
 
+std::optional<std::string> PromtoolExecutable() {
+  const char* path = EnvironmentOr("HSCLOC_PROMTOOL", HSCLOC_DEFAULT_PROMTOOL);
+  if (*path == '\0' || access(path, X_OK) != 0) return std::nullopt;
+  return std::string(path);
+}
+
 std::string InvalidArgumentMessage(const std::function<void()>& body) {
   try {
     body();

@@ -37,6 +37,9 @@ std::optional<std::filesystem::path> TrainedSmallCityDir();
 // The COLMAP executable (HSCLOC_COLMAP, set by ctest), or nullopt.
 std::optional<std::string> ColmapExecutable();
 
+// Prometheus's promtool (HSCLOC_PROMTOOL), or nullopt.
+std::optional<std::string> PromtoolExecutable();
+
 // The message of the std::invalid_argument that `body` throws; records a test failure (and returns
 // "") when it throws none.
 std::string InvalidArgumentMessage(const std::function<void()>& body);
@@ -68,4 +71,11 @@ int RunCommand(const std::string& command, const std::string& log_path = "");
   if (!variable##_optional) {                                                   \
     GTEST_SKIP() << "the colmap binary was not found (apt-get install colmap)"; \
   }                                                                             \
+  const std::string variable = *variable##_optional
+
+#define HSCLOC_REQUIRE_PROMTOOL(variable)                                                   \
+  const auto variable##_optional = ::hscloc::testing::PromtoolExecutable();                 \
+  if (!variable##_optional) {                                                               \
+    GTEST_SKIP() << "promtool was not found (apt-get install prometheus)";                  \
+  }                                                                                         \
   const std::string variable = *variable##_optional
