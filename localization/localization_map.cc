@@ -1,7 +1,5 @@
 #include "localization/localization_map.h"
 
-#include <sstream>
-
 #include "map/map_bundle.h"
 #include "scene/scene_io.h"
 #include "util/binary_io.h"
@@ -14,12 +12,14 @@ constexpr uint32_t kGlobalDescriptorsMagic = 0x44475348;  // "HSGD"
 constexpr uint32_t kGlobalDescriptorsVersion = 1;
 
 // Deserializes one blob, prefixing any error with the bundle so the operator knows which map.
+// The blob's bytes are freed once parsed, so loading holds one raw blob at a time beside the map.
 template <typename Reader>
-auto ReadBlob(const MapBundle& bundle, const char* name, Reader read) {
+auto ReadBlob(MapBundle& bundle, const char* name, Reader read) {
   if (!bundle.HasBlob(name)) {
     ThrowInvalidArgument("map bundle {}: blob '{}' is missing", bundle.dir().string(), name);
   }
-  std::istringstream stream(bundle.Blob(name));
+  const std::string bytes = bundle.TakeBlob(name);
+  MemoryInputStream stream(bytes);
   const std::string source = (bundle.dir() / name).string();
   return read(stream, source);
 }
@@ -52,7 +52,14 @@ GlobalDescriptorMatrix ReadGlobalDescriptors(std::istream& stream, const std::st
 
 std::shared_ptr<const LocalizationMap> LocalizationMap::Load(
     const std::filesystem::path& bundle_dir, const LocalizationMapLoadOptions& options) {
-  const MapBundle bundle = MapBundle::Open(bundle_dir);
+  // Only the blobs this map needs are read and verified: a serving map skips the observations'
+  // descriptors (most of a map's bytes), a map without its network skips the network.
+  std::vector<std::string> blobs = {map_blobs::kScene,     map_blobs::kLabelTree,
+                                    map_blobs::kVisibility, map_blobs::kVlad,
+                                    map_blobs::kGlobalDescriptors, map_blobs::kGlobalIndex};
+  if (options.load_observations) blobs.push_back(map_blobs::kObservations);
+  if (options.load_network) blobs.push_back(map_blobs::kNetwork);
+  MapBundle bundle = MapBundle::Open(bundle_dir, blobs);
   auto map = std::make_shared<LocalizationMap>();
   map->dir_ = bundle_dir;
   map->metadata_ = bundle.metadata();

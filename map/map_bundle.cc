@@ -4,6 +4,8 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <cstring>
 #include <fstream>
@@ -13,6 +15,7 @@
 
 #include "map/map_blobs.h"
 #include "util/check.h"
+#include "util/parallel.h"
 #include "util/sha256.h"
 
 namespace hscloc {
@@ -367,15 +370,34 @@ void MapBundleWriter::Commit() {
   }
 }
 
-MapBundle MapBundle::Open(const std::filesystem::path& bundle_dir) {
+MapBundle MapBundle::Open(const std::filesystem::path& bundle_dir,
+                          const std::optional<std::vector<std::string>>& blobs, int num_threads) {
   MapBundle bundle;
   bundle.dir_ = NormalizedDir(bundle_dir);
   Manifest manifest = ReadManifest(bundle.dir_);
+  std::vector<std::pair<std::string, const ManifestEntry*>> wanted;
   for (const auto& [name, entry] : manifest.files) {
-    CheckBlobSize(bundle.dir_, name, entry);
-    std::string bytes = ReadBlob(bundle.dir_, name, entry.bytes);
-    CheckBlobDigest(bundle.dir_, name, entry, Sha256Hex(bytes));
-    bundle.blobs_.emplace(name, std::move(bytes));
+    bundle.sizes_.emplace(name, entry.bytes);
+    if (!blobs || std::find(blobs->begin(), blobs->end(), name) != blobs->end()) {
+      wanted.emplace_back(name, &entry);
+    }
+  }
+  // Largest first, so that the threads finish together; a blob is read and hashed by one thread.
+  std::sort(wanted.begin(), wanted.end(),
+            [](const auto& a, const auto& b) { return a.second->bytes > b.second->bytes; });
+  std::vector<std::string> bytes(wanted.size());
+  std::atomic<size_t> next{0};
+  ParallelFor(std::min<size_t>(wanted.size(), ResolveNumThreads(num_threads)), num_threads,
+              [&](size_t, size_t) {
+                for (size_t i; (i = next++) < wanted.size();) {
+                  const auto& [name, entry] = wanted[i];
+                  CheckBlobSize(bundle.dir_, name, *entry);
+                  bytes[i] = ReadBlob(bundle.dir_, name, entry->bytes);
+                  CheckBlobDigest(bundle.dir_, name, *entry, Sha256Hex(bytes[i]));
+                }
+              });
+  for (size_t i = 0; i < wanted.size(); ++i) {
+    bundle.blobs_.emplace(wanted[i].first, std::move(bytes[i]));
   }
   bundle.metadata_ = manifest.json.at("metadata");
   bundle.manifest_ = std::move(manifest.json);
@@ -384,17 +406,31 @@ MapBundle MapBundle::Open(const std::filesystem::path& bundle_dir) {
 
 std::vector<std::string> MapBundle::BlobNames() const {
   std::vector<std::string> names;
-  names.reserve(blobs_.size());
-  for (const auto& [name, bytes] : blobs_) names.push_back(name);
+  names.reserve(sizes_.size());
+  for (const auto& [name, size] : sizes_) names.push_back(name);
   return names;
 }
 
-uint64_t MapBundle::BlobSize(const std::string& name) const { return Blob(name).size(); }
+uint64_t MapBundle::BlobSize(const std::string& name) const {
+  const auto it = sizes_.find(name);
+  if (it == sizes_.end()) ThrowInvalidArgument("map bundle {}: no blob '{}'", dir_.string(), name);
+  return it->second;
+}
 
 const std::string& MapBundle::Blob(const std::string& name) const {
   const auto it = blobs_.find(name);
-  if (it == blobs_.end()) ThrowInvalidArgument("map bundle {}: no blob '{}'", dir_.string(), name);
+  if (it == blobs_.end()) {
+    ThrowInvalidArgument("map bundle {}: {}", dir_.string(),
+                         HasBlob(name) ? fmt::format("blob '{}' was not read", name)
+                                       : fmt::format("no blob '{}'", name));
+  }
   return it->second;
+}
+
+std::string MapBundle::TakeBlob(const std::string& name) {
+  std::string bytes = std::move(const_cast<std::string&>(Blob(name)));
+  blobs_.erase(name);
+  return bytes;
 }
 
 }  // namespace hscloc

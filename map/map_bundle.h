@@ -12,6 +12,7 @@
 #include <iosfwd>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -57,24 +58,34 @@ class MapBundleWriter {
 
 class MapBundle {
  public:
-  // Reads the manifest and verifies the format version and every blob (size and SHA-256). Throws
-  // std::invalid_argument naming the bundle and the missing, truncated or corrupt file.
-  static MapBundle Open(const std::filesystem::path& bundle_dir);
+  // Reads the manifest and verifies the format version, then reads the blobs `blobs` names (every
+  // blob of the manifest when nullopt; names the manifest lacks are skipped, HasBlob tells) into
+  // buffers of their exact size and verifies each one's size and SHA-256, several blobs at once on
+  // up to `num_threads` threads (<= 0: all cores). Throws std::invalid_argument naming the bundle
+  // and the missing, truncated or corrupt file.
+  static MapBundle Open(const std::filesystem::path& bundle_dir,
+                        const std::optional<std::vector<std::string>>& blobs = std::nullopt,
+                        int num_threads = 0);
 
   const std::filesystem::path& dir() const { return dir_; }
   const nlohmann::json& metadata() const { return metadata_; }
   const nlohmann::json& manifest() const { return manifest_; }
-  bool HasBlob(const std::string& name) const { return blobs_.count(name) > 0; }
+  // Whether the manifest lists the blob (read or not).
+  bool HasBlob(const std::string& name) const { return sizes_.count(name) > 0; }
   std::vector<std::string> BlobNames() const;
+  // The size the manifest records; throws naming the blob when absent.
   uint64_t BlobSize(const std::string& name) const;
-  // The blob's bytes, as verified at Open(); throws naming the blob when absent.
+  // The blob's bytes, as verified at Open(); throws naming the blob when absent, not read or taken.
   const std::string& Blob(const std::string& name) const;
+  // Moves the blob's bytes out, so that they are freed once parsed; Blob() then throws.
+  std::string TakeBlob(const std::string& name);
 
  private:
   std::filesystem::path dir_;
   nlohmann::json manifest_;
   nlohmann::json metadata_;
-  std::map<std::string, std::string> blobs_;
+  std::map<std::string, uint64_t> sizes_;     // every blob of the manifest
+  std::map<std::string, std::string> blobs_;  // the blobs read
 };
 
 }  // namespace hscloc

@@ -120,6 +120,35 @@ TEST(MapBundle, RoundTripsBlobsAndMetadata) {
   }
 }
 
+TEST(MapBundle, OpensOnlyTheBlobsAskedForAndNeverReadsTheOthers) {
+  testing::TempDir temp;
+  const Blobs blobs = SampleBlobs();
+  WriteBundle(temp / "map", blobs);
+  // A corrupt blob that is not asked for is never read, so it cannot stop the others.
+  std::string corrupt = blobs.at("points3D.bin");
+  corrupt[7] ^= 0x01;
+  WriteFile(temp / "map" / "points3D.bin", corrupt);
+  MapBundle bundle = MapBundle::Open(temp / "map", std::vector<std::string>{"tree.bin", "x.bin"}, 2);
+  EXPECT_TRUE(bundle.Blob("tree.bin") == blobs.at("tree.bin"));
+  EXPECT_TRUE(bundle.HasBlob("points3D.bin"));
+  EXPECT_EQ(bundle.BlobSize("points3D.bin"), blobs.at("points3D.bin").size());
+  EXPECT_FALSE(bundle.HasBlob("x.bin"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { bundle.Blob("points3D.bin"); }),
+              HasSubstr("blob 'points3D.bin' was not read"));
+  // Taken, the bytes leave the bundle.
+  EXPECT_TRUE(bundle.TakeBlob("tree.bin") == blobs.at("tree.bin"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { bundle.Blob("tree.bin"); }),
+              HasSubstr("blob 'tree.bin' was not read"));
+  // Asked for, the corrupt one is refused, whichever thread verifies it.
+  for (const int threads : {1, 2, 8}) {
+    EXPECT_THAT(testing::InvalidArgumentMessage([&] {
+                  MapBundle::Open(temp / "map", std::nullopt, threads);
+                }),
+                HasSubstr("blob 'points3D.bin' is corrupt (sha256 mismatch)"))
+        << threads;
+  }
+}
+
 TEST(MapBundle, AcceptsATrailingSlashAndIgnoresUnlistedFiles) {
   testing::TempDir temp;
   WriteBundle(temp.path().string() + "/map/", {{"a.bin", "abc"}});

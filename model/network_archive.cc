@@ -9,6 +9,7 @@
 #include "map/map_blobs.h"
 #include "model/network.h"
 #include "model/network_module.h"
+#include "util/binary_io.h"
 #include "util/check.h"
 
 namespace hscloc {
@@ -144,7 +145,7 @@ Network Network::FromBundle(const MapBundle& bundle, ComputeDevice device) {
     ThrowInvalidArgument("map bundle {} holds no trained network (run `hscloc train`)",
                          bundle.dir().string());
   }
-  std::istringstream stream(bundle.Blob(map_blobs::kNetwork));
+  MemoryInputStream stream(bundle.Blob(map_blobs::kNetwork));
   return Load(stream, (bundle.dir() / map_blobs::kNetwork).string(), device);
 }
 

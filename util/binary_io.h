@@ -8,6 +8,7 @@
 #include <istream>
 #include <ostream>
 #include <string>
+#include <string_view>
 #include <type_traits>
 #include <vector>
 
@@ -18,6 +19,41 @@
 #endif
 
 namespace hscloc {
+
+// An input stream over bytes it does not own, seekable, without the copy std::istringstream makes
+// (a map blob of a gigabyte is read once, not twice). The bytes must outlive the stream.
+class MemoryInputStream : public std::istream {
+ public:
+  explicit MemoryInputStream(std::string_view bytes) : std::istream(nullptr), buffer_(bytes) {
+    rdbuf(&buffer_);
+  }
+
+ private:
+  class Buffer : public std::streambuf {
+   public:
+    explicit Buffer(std::string_view bytes) {
+      char* begin = const_cast<char*>(bytes.data());  // only ever read: no put area
+      setg(begin, begin, begin + bytes.size());
+    }
+
+   protected:
+    pos_type seekoff(off_type offset, std::ios_base::seekdir direction,
+                     std::ios_base::openmode which) override {
+      if (!(which & std::ios_base::in)) return pos_type(off_type(-1));
+      const off_type base = direction == std::ios_base::beg   ? 0
+                            : direction == std::ios_base::cur ? gptr() - eback()
+                                                              : egptr() - eback();
+      const off_type target = base + offset;
+      if (target < 0 || target > egptr() - eback()) return pos_type(off_type(-1));
+      setg(eback(), eback() + target, egptr());
+      return pos_type(target);
+    }
+    pos_type seekpos(pos_type position, std::ios_base::openmode which) override {
+      return seekoff(off_type(position), std::ios_base::beg, which);
+    }
+  };
+  Buffer buffer_;
+};
 
 // Reads one value; `what` names the record for the error message ("points3D.bin: point 17 x").
 template <typename T>

@@ -32,6 +32,41 @@ TEST(BinaryIo, RoundTripsValuesArraysAndStrings) {
   EXPECT_EQ(ReadBinaryCString(stream, "name"), "name.jpg");
 }
 
+TEST(BinaryIo, MemoryInputStreamReadsSeeksAndEndsLikeAStringStream) {
+  std::mt19937 random(11);
+  std::string bytes(1000, '\0');
+  for (char& byte : bytes) byte = static_cast<char>(random());
+  MemoryInputStream memory(bytes);
+  std::istringstream copy(bytes);
+  std::uniform_int_distribution<int> offset(0, 999);
+  char from_memory[64];
+  char from_copy[64];
+  for (int trial = 0; trial < 50; ++trial) {
+    const int position = offset(random);
+    memory.seekg(position);
+    copy.seekg(position);
+    EXPECT_EQ(memory.tellg(), copy.tellg());
+    memory.read(from_memory, sizeof(from_memory));
+    copy.read(from_copy, sizeof(from_copy));
+    ASSERT_EQ(memory.gcount(), copy.gcount()) << position;
+    EXPECT_EQ(std::string(from_memory, memory.gcount()), std::string(from_copy, copy.gcount()));
+    EXPECT_EQ(memory.eof(), copy.eof());
+    memory.clear();
+    copy.clear();
+  }
+  memory.seekg(-10, std::ios::end);
+  EXPECT_EQ(memory.tellg(), 990);
+  memory.seekg(5, std::ios::cur);
+  EXPECT_EQ(memory.tellg(), 995);
+  memory.seekg(2000);
+  EXPECT_TRUE(memory.fail());  // beyond the end
+  // The stream reads the caller's bytes in place: a change after it was made shows.
+  MemoryInputStream view(bytes);
+  bytes[1] = 'Q';
+  view.seekg(1);
+  EXPECT_EQ(view.peek(), 'Q');
+}
+
 TEST(BinaryIo, ShortReadNamesTheRecord) {
   std::stringstream stream(std::string("abc", 3));
   try {
