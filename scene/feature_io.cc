@@ -26,8 +26,32 @@ void JoinOptions::Check() const {
                   max_keypoint_mismatch_px);
 }
 
-Observations JoinObservations(const Reconstruction& reconstruction, const FeatureReader& features,
-                              const JoinOptions& options) {
+Observations ObservationIndices(const Reconstruction& reconstruction) {
+  size_t num_observations = 0;
+  for (const auto& [image_id, image] : reconstruction.images) {
+    num_observations += std::count_if(image.points2D.begin(), image.points2D.end(),
+                                      [](const Point2D& point) { return point.HasPoint3D(); });
+  }
+  Observations observations;
+  observations.image_ids.reserve(num_observations);
+  observations.keypoint_indices.reserve(num_observations);
+  observations.point3D_ids.reserve(num_observations);
+  for (const auto& [image_id, image] : reconstruction.images) {
+    for (size_t point2D_idx = 0; point2D_idx < image.points2D.size(); ++point2D_idx) {
+      const Point2D& point = image.points2D[point2D_idx];
+      if (!point.HasPoint3D()) continue;
+      observations.image_ids.push_back(image_id);
+      observations.keypoint_indices.push_back(static_cast<point2D_t>(point2D_idx));
+      observations.point3D_ids.push_back(point.point3D_id);
+    }
+  }
+  return observations;
+}
+
+int64_t ForEachJoinedImage(
+    const Reconstruction& reconstruction, const FeatureReader& features, const JoinOptions& options,
+    const std::function<void(const Image& image, const ImageFeatures& image_features,
+                             const std::vector<point2D_t>& keypoint_rows)>& visit) {
   options.Check();
   const std::string source = features.path().string();
   for (const auto& [image_id, image] : reconstruction.images) {
@@ -39,24 +63,14 @@ Observations JoinObservations(const Reconstruction& reconstruction, const Featur
     }
   }
 
-  // Counted first so that the descriptor matrix is allocated once; features are then read one
-  // image at a time, never all at once.
-  size_t num_observations = 0;
-  for (const auto& [image_id, image] : reconstruction.images) {
-    num_observations += std::count_if(image.points2D.begin(), image.points2D.end(),
-                                      [](const Point2D& point) { return point.HasPoint3D(); });
-  }
-  Observations observations;
-  observations.image_ids.reserve(num_observations);
-  observations.keypoint_indices.reserve(num_observations);
-  observations.point3D_ids.reserve(num_observations);
-
   const Image* first_image = nullptr;  // the image that fixed the descriptor dimension
-  size_t row = 0;
+  int64_t dimension = 0;
+  std::vector<point2D_t> keypoint_rows;
   for (const auto& [image_id, image] : reconstruction.images) {
     const bool observes = std::any_of(image.points2D.begin(), image.points2D.end(),
                                       [](const Point2D& point) { return point.HasPoint3D(); });
     if (!observes) continue;
+    // One image's features at a time, never all at once.
     const ImageFeatures image_features = features.Read(image.name);
     const int64_t num_keypoints = image_features.NumKeypoints();
     if (image_features.descriptors.rows() != num_keypoints) {
@@ -65,15 +79,15 @@ Observations JoinObservations(const Reconstruction& reconstruction, const Featur
     }
     if (first_image == nullptr) {
       first_image = &image;
-      observations.descriptors.resize(num_observations, image_features.Dimension());
-    } else if (image_features.Dimension() != observations.Dimension()) {
+      dimension = image_features.Dimension();
+    } else if (image_features.Dimension() != dimension) {
       ThrowInvalidArgument(
           "joining features {}: descriptor dimension {} of image '{}' differs from {} of image "
           "'{}'",
-          source, image_features.Dimension(), image.name, observations.Dimension(),
-          first_image->name);
+          source, image_features.Dimension(), image.name, dimension, first_image->name);
     }
 
+    keypoint_rows.clear();
     for (size_t point2D_idx = 0; point2D_idx < image.points2D.size(); ++point2D_idx) {
       const Point2D& point = image.points2D[point2D_idx];
       if (!point.HasPoint3D()) continue;
@@ -92,12 +106,30 @@ Observations JoinObservations(const Reconstruction& reconstruction, const Featur
             source, image.name, image_id, point2D_idx, point.point3D_id, point.xy.x(), point.xy.y(),
             mismatch_px, keypoint.x(), keypoint.y(), options.max_keypoint_mismatch_px);
       }
-      observations.image_ids.push_back(image_id);
-      observations.keypoint_indices.push_back(static_cast<point2D_t>(point2D_idx));
-      observations.point3D_ids.push_back(point.point3D_id);
-      observations.descriptors.row(row++) = image_features.descriptors.row(point2D_idx);
+      keypoint_rows.push_back(static_cast<point2D_t>(point2D_idx));
     }
+    visit(image, image_features, keypoint_rows);
   }
+  return dimension;
+}
+
+Observations JoinObservations(const Reconstruction& reconstruction, const FeatureReader& features,
+                              const JoinOptions& options) {
+  Observations observations = ObservationIndices(reconstruction);
+  DescriptorMatrix& descriptors = observations.descriptors;
+  Eigen::Index row = 0;
+  ForEachJoinedImage(reconstruction, features, options,
+                     [&](const Image&, const ImageFeatures& image_features,
+                         const std::vector<point2D_t>& keypoint_rows) {
+                       // Allocated once, at the first image, which fixes the dimension.
+                       if (descriptors.size() == 0) {
+                         descriptors.resize(static_cast<Eigen::Index>(observations.size()),
+                                            image_features.Dimension());
+                       }
+                       for (const point2D_t keypoint : keypoint_rows) {
+                         descriptors.row(row++) = image_features.descriptors.row(keypoint);
+                       }
+                     });
   return observations;
 }
 

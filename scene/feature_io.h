@@ -10,6 +10,7 @@
 #pragma once
 
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <string>
 #include <unordered_map>
@@ -95,5 +96,18 @@ struct JoinOptions {
 // images. Rows are ordered by image id, then 2D point index.
 Observations JoinObservations(const Reconstruction& reconstruction, const FeatureReader& features,
                               const JoinOptions& options = {});
+
+// The join without its descriptors, from the model alone (no feature is read): the image id,
+// keypoint index and point3D id of every row JoinObservations would make, in its order.
+Observations ObservationIndices(const Reconstruction& reconstruction);
+
+// The join one image at a time, for a map too large to hold its descriptors: after the checks
+// JoinObservations makes (each image's as it is read), calls `visit` with every image that
+// observes a point, in JoinObservations' order, its features and the keypoint rows it
+// contributes. Returns the descriptor dimension (0 when no image observes a point).
+int64_t ForEachJoinedImage(
+    const Reconstruction& reconstruction, const FeatureReader& features, const JoinOptions& options,
+    const std::function<void(const Image& image, const ImageFeatures& image_features,
+                             const std::vector<point2D_t>& keypoint_rows)>& visit);
 
 }  // namespace hscloc

@@ -77,6 +77,42 @@ TEST_F(SyntheticJoin, RowsFollowImageIdThenKeypointIndex) {
   EXPECT_EQ(observations.descriptors.row(4), features_a_.descriptors.row(19));
 }
 
+TEST_F(SyntheticJoin, StreamedJoinAndIndicesMatchTheJoin) {
+  const auto features = OpenH5Features(dir_ / "features.h5");
+  const Observations joined = JoinObservations(reconstruction_, *features);
+  const Observations indices = ObservationIndices(reconstruction_);
+  EXPECT_EQ(indices.image_ids, joined.image_ids);
+  EXPECT_EQ(indices.keypoint_indices, joined.keypoint_indices);
+  EXPECT_EQ(indices.point3D_ids, joined.point3D_ids);
+  EXPECT_EQ(indices.descriptors.size(), 0);
+  std::vector<std::string> images;
+  DescriptorMatrix streamed(0, joined.Dimension());
+  const int64_t dimension = ForEachJoinedImage(
+      reconstruction_, *features, {},
+      [&](const Image& image, const ImageFeatures& image_features,
+          const std::vector<point2D_t>& keypoint_rows) {
+        images.push_back(image.name);
+        const Eigen::Index begin = streamed.rows();
+        streamed.conservativeResize(begin + static_cast<Eigen::Index>(keypoint_rows.size()),
+                                    Eigen::NoChange);
+        for (size_t k = 0; k < keypoint_rows.size(); ++k) {
+          streamed.row(begin + static_cast<Eigen::Index>(k)) =
+              image_features.descriptors.row(keypoint_rows[k]);
+        }
+      });
+  EXPECT_EQ(dimension, 16);
+  EXPECT_THAT(images, ::testing::ElementsAre("sub/b.jpg", "a.jpg"));  // image ids 2, 7
+  EXPECT_EQ(streamed, joined.descriptors);
+  // The streamed join checks what the join checks.
+  reconstruction_.images[7].points2D[19].xy.x() += 0.01;
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
+                ForEachJoinedImage(reconstruction_, *features, {},
+                                   [](const Image&, const ImageFeatures&,
+                                      const std::vector<point2D_t>&) {});
+              }),
+              HasSubstr("image 'a.jpg' (id 7), 2D point 19 (3D point 102)"));
+}
+
 TEST_F(SyntheticJoin, KeypointFartherThanTheToleranceIsReported) {
   reconstruction_.images[7].points2D[19].xy.x() += 0.01;
   const auto features = OpenH5Features(dir_ / "features.h5");

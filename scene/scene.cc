@@ -44,12 +44,13 @@ void Scene::RebuildIndex() {
   }
 }
 
-Scene Scene::FromReconstruction(const Reconstruction& reconstruction,
-                                const Observations& observations) {
+Scene Scene::FromReconstruction(const Reconstruction& reconstruction, Observations observations) {
   const size_t num_observations = observations.size();
+  const bool indices_only = observations.descriptors.size() == 0;
   if (observations.keypoint_indices.size() != num_observations ||
       observations.point3D_ids.size() != num_observations ||
-      static_cast<size_t>(observations.descriptors.rows()) != num_observations) {
+      (!indices_only &&
+       static_cast<size_t>(observations.descriptors.rows()) != num_observations)) {
     ThrowInvalidArgument(
         "observations: {} image ids, {} keypoint indices, {} point3D ids and {} descriptors",
         num_observations, observations.keypoint_indices.size(), observations.point3D_ids.size(),
@@ -87,7 +88,7 @@ Scene Scene::FromReconstruction(const Reconstruction& reconstruction,
     scene.observation_image_indices[i] = image->second;
     scene.observation_point_indices[i] = point->second;
   }
-  scene.observation_descriptors = observations.descriptors;
+  scene.observation_descriptors = std::move(observations.descriptors);
   return scene;
 }
 

@@ -46,8 +46,9 @@ struct Scene {
   // every 2D point with a 3D point). Points without any observation are kept (they are still
   // predicted by nothing but cost nothing). Throws std::invalid_argument naming the observation
   // and the id when an observation refers to an image or point the reconstruction lacks.
-  static Scene FromReconstruction(const Reconstruction& reconstruction,
-                                  const Observations& observations);
+  // Observations without descriptors (ObservationIndices) give a scene of indices only, whose
+  // Dimension() is 0; the descriptors are moved, never copied.
+  static Scene FromReconstruction(const Reconstruction& reconstruction, Observations observations);
 
  private:
   std::unordered_map<image_t, uint32_t> image_index_of_id_;

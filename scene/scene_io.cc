@@ -1,5 +1,6 @@
 #include "scene/scene_io.h"
 
+#include <algorithm>
 #include <istream>
 #include <ostream>
 
@@ -130,20 +131,46 @@ Scene ReadSceneGeometry(std::istream& stream, const std::string& source) {
   return scene;
 }
 
-void WriteSceneObservations(std::ostream& stream, const Scene& scene) {
+SceneObservationsWriter::SceneObservationsWriter(std::ostream& stream, const Scene& scene,
+                                                 int64_t dimension)
+    : stream_(stream), expected_rows_(scene.NumObservations()), dimension_(dimension) {
+  THROW_CHECK_MSG(dimension >= 0, "SceneObservationsWriter: dimension {}", dimension);
   WriteBinary(stream, kObservationsMagic);
   WriteBinary(stream, kVersion);
   WriteBinary<uint64_t>(stream, scene.NumObservations());
-  WriteBinary<uint64_t>(stream, static_cast<uint64_t>(scene.Dimension()));
+  WriteBinary<uint64_t>(stream, static_cast<uint64_t>(dimension));
   WriteBinaryArray(stream, scene.observation_image_indices.data(), scene.NumObservations());
   WriteBinaryArray(stream, scene.observation_point_indices.data(), scene.NumObservations());
-  std::vector<uint16_t> halves(scene.observation_descriptors.cols());
-  for (Eigen::Index row = 0; row < scene.observation_descriptors.rows(); ++row) {
-    for (Eigen::Index d = 0; d < scene.observation_descriptors.cols(); ++d) {
-      halves[d] = FloatToHalfBits(scene.observation_descriptors(row, d));
+}
+
+void SceneObservationsWriter::Append(const DescriptorMatrix& rows) {
+  THROW_CHECK_MSG(rows.cols() == dimension_ && rows_ + rows.rows() <= expected_rows_,
+                  "SceneObservationsWriter: {} rows of dimension {} after {} of {} of dimension {}",
+                  rows.rows(), rows.cols(), rows_, expected_rows_, dimension_);
+  // Converted in blocks, so that a whole scene's rows need no second copy.
+  constexpr Eigen::Index kBlockRows = 4096;
+  for (Eigen::Index begin = 0; begin < rows.rows(); begin += kBlockRows) {
+    const Eigen::Index end = std::min(rows.rows(), begin + kBlockRows);
+    halves_.resize(static_cast<size_t>((end - begin) * rows.cols()));
+    for (Eigen::Index row = begin; row < end; ++row) {
+      for (Eigen::Index d = 0; d < rows.cols(); ++d) {
+        halves_[(row - begin) * rows.cols() + d] = FloatToHalfBits(rows(row, d));
+      }
     }
-    WriteBinaryArray(stream, halves.data(), halves.size());
+    WriteBinaryArray(stream_, halves_.data(), halves_.size());
   }
+  rows_ += rows.rows();
+}
+
+void SceneObservationsWriter::Finish() const {
+  THROW_CHECK_MSG(rows_ == expected_rows_, "SceneObservationsWriter: {} of {} rows written", rows_,
+                  expected_rows_);
+}
+
+void WriteSceneObservations(std::ostream& stream, const Scene& scene) {
+  SceneObservationsWriter writer(stream, scene, scene.Dimension());
+  writer.Append(scene.observation_descriptors);
+  writer.Finish();
 }
 
 void ReadSceneObservations(std::istream& stream, const std::string& source, Scene& scene) {

@@ -4,8 +4,10 @@
 // The geometry is what serving needs; observations are for training and explicit matching.
 #pragma once
 
+#include <cstdint>
 #include <iosfwd>
 #include <string>
+#include <vector>
 
 #include "scene/scene.h"
 
@@ -17,6 +19,23 @@ void WriteSceneGeometry(std::ostream& stream, const Scene& scene);
 Scene ReadSceneGeometry(std::istream& stream, const std::string& source);
 
 void WriteSceneObservations(std::ostream& stream, const Scene& scene);
+
+// Writes what WriteSceneObservations writes for a scene of indices only (Scene::FromReconstruction
+// of ObservationIndices) from descriptor rows appended in observation order, so that a map's
+// descriptors are never held at once. Finish() throws unless exactly every row came.
+class SceneObservationsWriter {
+ public:
+  SceneObservationsWriter(std::ostream& stream, const Scene& scene, int64_t dimension);
+  void Append(const DescriptorMatrix& rows);
+  void Finish() const;
+
+ private:
+  std::ostream& stream_;
+  uint64_t expected_rows_;
+  int64_t dimension_;
+  uint64_t rows_ = 0;
+  std::vector<uint16_t> halves_;
+};
 // Adds the observations to a scene read by ReadSceneGeometry; throws naming `source` when an
 // index is out of range or the data is truncated.
 void ReadSceneObservations(std::istream& stream, const std::string& source, Scene& scene);

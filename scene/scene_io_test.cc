@@ -76,6 +76,29 @@ TEST(SceneIo, ObservationsRoundTripAtHalfPrecision) {
   EXPECT_EQ(read.observation_descriptors, scene.observation_descriptors);
 }
 
+TEST(SceneIo, ObservationsWrittenInPiecesEqualTheWholeAndCountTheirRows) {
+  const Scene scene = RandomScene(4, 30, 5000, 32);  // more rows than one conversion block
+  std::stringstream whole;
+  WriteSceneObservations(whole, scene);
+  Scene indices_only = scene;
+  indices_only.observation_descriptors.resize(0, 0);
+  std::stringstream pieces;
+  SceneObservationsWriter writer(pieces, indices_only, 32);
+  for (Eigen::Index begin = 0; begin < 5000; begin += 777) {
+    const Eigen::Index rows = std::min<Eigen::Index>(777, 5000 - begin);
+    writer.Append(scene.observation_descriptors.middleRows(begin, rows));
+  }
+  writer.Finish();
+  EXPECT_TRUE(pieces.str() == whole.str());
+
+  std::stringstream short_stream;
+  SceneObservationsWriter short_writer(short_stream, indices_only, 32);
+  short_writer.Append(scene.observation_descriptors.topRows(10));
+  EXPECT_THROW(short_writer.Finish(), std::invalid_argument);
+  EXPECT_THROW(short_writer.Append(DescriptorMatrix::Zero(1, 16)), std::invalid_argument);
+  EXPECT_THROW(short_writer.Append(DescriptorMatrix::Zero(4991, 32)), std::invalid_argument);
+}
+
 TEST(SceneIo, TruncationAnywhereIsAnError) {
   const Scene scene = RandomScene(3, 10, 20, 4);
   std::stringstream geometry, observations;
