@@ -85,8 +85,8 @@ class LevelImpl : public torch::nn::Module {
   int level() const { return level_; }
   bool HasNodeOutput() const { return node_output_dim_ > 0; }
   bool IsPooled() const { return pooled_; }
-  // Training gathers node rows with sparse gradients (only the rows a batch touches), for
-  // row-wise lazy Adam (model/lazy_adam.h).
+  // Training gathers the per-node tables (output rows, conditioning embeddings) with sparse
+  // gradients (only the rows a batch touches), for row-wise lazy Adam (model/lazy_adam.h).
   void SetSparseNodeRows(bool sparse) { sparse_node_rows_ = sparse; }
   // The node output rows (undefined without them): the table the trainer updates lazily.
   torch::Tensor NodeRows() const { return node_rows_; }
@@ -153,11 +153,12 @@ enum class Pooling { kLogSumExp, kMax };
 // Logits [R, branching] of pooled point rows: child c of row r scores the pooling of
 // <point_rows[rank], projected[r]> over its candidates; -inf where a child has none (a row with
 // no candidate at all gets 0 everywhere). Training pools by log-sum-exp; decoding by the maximum,
-// its dominant term, which costs no exponential per candidate. The table's gradient is dense:
-// a batch touches a large share of its rows (lazy Adam still updates only those).
+// its dominant term, which costs no exponential per candidate. With `sparse_gradient` the table's
+// gradient is sparse (for lazy Adam): only the finest level with a choice trains the rows, and its
+// candidates are a few points per row, a sliver of a large map's table.
 torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Tensor& point_rows,
                                 const FlatCandidates& candidates, int64_t branching,
-                                Pooling pooling);
+                                Pooling pooling, bool sparse_gradient = false);
 
 torch::Device TorchDevice(ComputeDevice device);
 // Rows scaled to unit L2 norm (zero rows stay zero).

@@ -25,7 +25,7 @@ FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* sl
     return torch::from_blob(values.data(), {static_cast<int64_t>(values.size())}, torch::kInt64)
         .clone();
   };
-  return {tensor(ranks), tensor(rows), tensor(groups)};
+  return {tensor(ranks), tensor(rows), tensor(groups), {}, {}};
 }
 
 namespace {
@@ -35,15 +35,25 @@ namespace {
 // heap rather than mapped and page-faulted in anew at every step.
 constexpr int64_t kPieceBytes = int64_t{16} << 20;
 
+// point_rows[ranks]; with a sparse gradient (embedding's) the backward pass touches only those
+// rows, where index_select's allocates and fills the whole table's gradient at every step.
+torch::Tensor GatherRows(const torch::Tensor& point_rows, const torch::Tensor& ranks,
+                         bool sparse_gradient) {
+  if (!sparse_gradient || !point_rows.requires_grad()) return point_rows.index_select(0, ranks);
+  return torch::embedding(point_rows, ranks, /*padding_idx=*/-1, /*scale_grad_by_freq=*/false,
+                          /*sparse=*/true);
+}
+
 // <point_rows[rank_i], projected[row_i]> for every candidate i, [T].
 torch::Tensor CandidateScores(const torch::Tensor& projected, const torch::Tensor& point_rows,
-                              const torch::Tensor& ranks, const torch::Tensor& rows) {
+                              const torch::Tensor& ranks, const torch::Tensor& rows,
+                              bool sparse_gradient) {
   const int64_t per_piece = std::max<int64_t>(
       1024, kPieceBytes / (point_rows.size(1) * static_cast<int64_t>(sizeof(float))));
   std::vector<torch::Tensor> pieces;
   for (int64_t begin = 0; begin < ranks.size(0); begin += per_piece) {
     const int64_t size = std::min(per_piece, ranks.size(0) - begin);
-    const torch::Tensor gathered = point_rows.index_select(0, ranks.narrow(0, begin, size));
+    const torch::Tensor gathered = GatherRows(point_rows, ranks.narrow(0, begin, size), sparse_gradient);
     pieces.push_back((gathered * projected.index_select(0, rows.narrow(0, begin, size))).sum(1));
   }
   if (pieces.empty()) return torch::empty({0}, projected.options());
@@ -67,13 +77,13 @@ torch::Tensor CellMaxima(const torch::Tensor& cells, const torch::Tensor& scores
 
 torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Tensor& point_rows,
                                 const FlatCandidates& candidates, int64_t branching,
-                                Pooling pooling) {
+                                Pooling pooling, bool sparse_gradient) {
   const torch::Device device = projected.device();
   const int64_t num_rows = projected.size(0);
   const torch::Tensor rows = candidates.rows.to(device);
   const torch::Tensor cells = rows * branching + candidates.groups.to(device);
   const torch::Tensor scores =
-      CandidateScores(projected, point_rows, candidates.ranks.to(device), rows);
+      CandidateScores(projected, point_rows, candidates.ranks.to(device), rows, sparse_gradient);
   // The maximum per cell: the pooled logit itself, or log-sum-exp's stabilizer (a constant for
   // the gradient).
   const torch::Tensor best = CellMaxima(cells, scores, num_rows * branching);
@@ -90,7 +100,8 @@ torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Ten
   logits = logits.view({num_rows, branching});
   if (candidates.true_ranks.defined()) {
     const torch::Tensor true_scores =
-        (point_rows.index_select(0, candidates.true_ranks.to(device)) * projected).sum(1);
+        (GatherRows(point_rows, candidates.true_ranks.to(device), sparse_gradient) * projected)
+            .sum(1);
     logits =
         logits.scatter(1, candidates.true_groups.to(device).unsqueeze(1), true_scores.unsqueeze(1));
   }

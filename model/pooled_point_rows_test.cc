@@ -64,7 +64,9 @@ TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
   // row 0 too); row 2: no candidate at all.
   const FlatCandidates candidates{torch::tensor({2, 7, 5, 2}, torch::kInt64),
                                   torch::tensor({0, 0, 0, 1}, torch::kInt64),
-                                  torch::tensor({1, 1, 4, 0}, torch::kInt64)};
+                                  torch::tensor({1, 1, 4, 0}, torch::kInt64),
+                                  {},
+                                  {}};
   const auto score = [&](int64_t row, int64_t rank) {
     return (table[rank] * projected[row]).sum().item<float>();
   };
@@ -100,7 +102,9 @@ TEST(PooledPointLogitsTest, TrainingGradientReachesOnlyTheCandidatesRows) {
   const torch::Tensor projected = torch::randn({2, 3});
   const FlatCandidates candidates{torch::tensor({1, 6, 3}, torch::kInt64),
                                   torch::tensor({0, 0, 1}, torch::kInt64),
-                                  torch::tensor({0, 2, 2}, torch::kInt64)};
+                                  torch::tensor({0, 2, 2}, torch::kInt64),
+                                  {},
+                                  {}};
   const torch::Tensor logits =
       PooledPointLogits(projected, table, candidates, 4, Pooling::kLogSumExp);
   torch::nn::functional::cross_entropy(logits, torch::tensor({0, 2}, torch::kInt64)).backward();
@@ -109,6 +113,31 @@ TEST(PooledPointLogitsTest, TrainingGradientReachesOnlyTheCandidatesRows) {
   const torch::Tensor touched = gradient.abs().sum(1).nonzero().squeeze(1);
   // Row 1 has a single candidate child: nothing to learn, a zero gradient on its point.
   EXPECT_TRUE(touched.equal(torch::tensor({1, 6}, torch::kInt64)));
+}
+
+TEST(PooledPointLogitsTest, TheSparseGradientEqualsTheDenseOneAndHoldsOnlyTheGatheredRows) {
+  torch::manual_seed(5);
+  const torch::Tensor start = torch::randn({1000, 5});
+  const torch::Tensor projected = torch::randn({3, 5});
+  // Candidates of three rows, with a repeated point and a true point (the training target).
+  const FlatCandidates candidates{torch::tensor({10, 20, 30, 20, 999, 5, 6}, torch::kInt64),
+                                  torch::tensor({0, 0, 0, 1, 1, 2, 2}, torch::kInt64),
+                                  torch::tensor({0, 1, 1, 0, 3, 2, 3}, torch::kInt64),
+                                  torch::tensor({10, 999, 6}, torch::kInt64),
+                                  torch::tensor({0, 3, 3}, torch::kInt64)};
+  const torch::Tensor targets = torch::tensor({0, 3, 3}, torch::kInt64);
+  torch::Tensor gradients[2];
+  for (const bool sparse : {false, true}) {
+    torch::Tensor table = start.clone().requires_grad_(true);
+    const torch::Tensor logits =
+        PooledPointLogits(projected, table, candidates, 4, Pooling::kLogSumExp, sparse);
+    torch::nn::functional::cross_entropy(logits, targets).backward();
+    EXPECT_EQ(table.grad().is_sparse(), sparse);
+    gradients[sparse] = sparse ? table.grad().coalesce() : table.grad();
+  }
+  EXPECT_TRUE(torch::allclose(gradients[1].to_dense(), gradients[0], 1e-6, 1e-7));
+  // Only the gathered rows are in it: 7 candidates and 3 true points, 6 distinct rows.
+  EXPECT_EQ(gradients[1].indices().size(1), 6);
 }
 
 }  // namespace

@@ -205,14 +205,18 @@ void Trainer::CreateOrRestoreNetwork(CheckpointReader* checkpoint) {
 }
 
 void Trainer::CreateOptimizers(CheckpointReader* checkpoint) {
-  // Node output rows go to lazy Adam (sparse gradients), everything else to dense Adam.
+  // The per-node and per-point tables go to lazy Adam (sparse gradients), everything else to dense
+  // Adam. On the aachen preset the finest level's conditioning embeddings alone are 61 M numbers:
+  // a dense gradient and Adam step over them cost more than the rest of a step
+  // (docs/decisions.md).
   std::vector<torch::Tensor> dense_parameters;
   for (Level& level : module_->levels) {
     level->SetSparseNodeRows(options_.sparse_node_updates && level->HasNodeOutput());
   }
   for (const auto& item : module_->named_parameters()) {
     const bool node_rows = item.key().find("node_rows") != std::string::npos ||
-                           item.key().find("point_rows") != std::string::npos;
+                           item.key().find("point_rows") != std::string::npos ||
+                           item.key().find("node_embedding") != std::string::npos;
     if (node_rows && options_.sparse_node_updates) {
       lazy_.push_back(LazyAdamTable::Of(item.value()));
     } else {
@@ -318,7 +322,8 @@ BatchLoss Trainer::Loss(const Batch& batch) {
       const bool owns_rows = level == finest_level_with_choice_;
       logits = PooledPointLogits(level_module->Project(features),
                                  owns_rows ? module_->point_rows : module_->point_rows.detach(),
-                                 batch.candidates[level], tree_.branching(), Pooling::kLogSumExp);
+                                 batch.candidates[level], tree_.branching(), Pooling::kLogSumExp,
+                                 options_.sparse_node_updates);
     } else {
       logits = level_module->forward(descriptors, batch.images, prefix, batch.parent_nodes[level],
                                      batch.child_nodes[level]);

@@ -67,8 +67,9 @@ struct TrainerOptions {
   // (docs/decisions.md). The network records it (NetworkOptions::masked_decoding) and the
   // Localizer follows. Pooled point rows always train this way, whatever this says.
   bool visibility_softmax = false;
-  // Node output rows updated row-wise (lazy Adam on the rows a batch touches) rather than by
-  // dense Adam over the whole table every step.
+  // The per-node and per-point tables (output rows, point rows, conditioning embeddings) updated
+  // row-wise (lazy Adam on the rows a batch touches) rather than by dense Adam over the whole
+  // table every step.
   bool sparse_node_updates = true;
   // Held-out evaluations over the budget (masked point accuracy on up to
   // evaluation_observations held-out observations); with keep_best the best network is returned

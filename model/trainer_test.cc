@@ -237,10 +237,11 @@ TEST_F(TinyCityTrainerTest, PooledPointRowsLearnAndAreDecodedWithTheMask) {
 }
 
 TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {
-  // A rate far too high makes the held-out accuracy wander: the returned network is the best
-  // checked one, and it scores what that check scored.
+  // A rate too high for a constant schedule makes the held-out accuracy rise, then fall (0.23 at
+  // iteration 40, 0.13 at 60, far more than two standard errors): the returned network is the
+  // best checked one, and it scores what that check scored.
   TrainerOptions options = QuickOptions(60);
-  options.learning_rate = 0.3;
+  options.learning_rate = 0.03;
   options.schedule = LearningRateSchedule::kHalving;
   options.halving_fractions = {};
   options.evaluations = 6;
