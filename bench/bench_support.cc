@@ -7,12 +7,16 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
+#include <iterator>
 #include <stdexcept>
+#include <thread>
 
 #include "util/timer.h"
 
@@ -39,10 +43,11 @@ void Step(const std::string& message) {
   std::cerr << fmt::format("[{:6.1f} s] {}\n", RunClock().ElapsedSeconds(), message) << std::flush;
 }
 
-// Runs `args` with stdout and stderr into `log`; throws with the log's tail when it fails.
-ChildRun RunChild(const std::vector<std::string>& args, const fs::path& log) {
+namespace {
+
+// Starts `args` (args[0] found on PATH) with stdout and stderr into `log`; returns its pid.
+pid_t StartChild(const std::vector<std::string>& args, const fs::path& log) {
   fs::create_directories(log.parent_path());
-  Timer timer;
   const pid_t pid = fork();
   if (pid < 0) throw std::runtime_error("fork failed");
   if (pid == 0) {
@@ -58,6 +63,29 @@ ChildRun RunChild(const std::vector<std::string>& args, const fs::path& log) {
     std::fprintf(stderr, "cannot run %s\n", argv[0]);
     _exit(127);
   }
+  return pid;
+}
+
+// VmRSS of a process, in MB; 0 when it cannot be read.
+double ProcessResidentMegabytes(pid_t pid) {
+  std::ifstream status(fmt::format("/proc/{}/status", pid));
+  for (std::string line; std::getline(status, line);) {
+    if (line.rfind("VmRSS:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;  // in kB
+  }
+  return 0;
+}
+
+std::string ReadFileText(const fs::path& path) {
+  std::ifstream file(path);
+  return std::string(std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>());
+}
+
+}  // namespace
+
+// Runs `args` with stdout and stderr into `log`; throws with the log's tail when it fails.
+ChildRun RunChild(const std::vector<std::string>& args, const fs::path& log) {
+  Timer timer;
+  const pid_t pid = StartChild(args, log);
   int status = 0;
   rusage usage{};
   wait4(pid, &status, 0, &usage);
@@ -67,6 +95,39 @@ ChildRun RunChild(const std::vector<std::string>& args, const fs::path& log) {
                                          FileTail(log, 1500)));
   }
   return {timer.ElapsedSeconds(), usage.ru_maxrss / 1024.0};
+}
+
+ServeRun MeasureServe(const std::string& hscloc, const fs::path& map_dir, const fs::path& log,
+                      double timeout_s) {
+  ServeRun run;
+  run.baseline_rss_mb = RunChild({hscloc, "--version"}, log.string() + ".version").peak_rss_mb;
+  const pid_t pid = StartChild({hscloc, "serve", "--map", map_dir.string(), "--bind",
+                                "tcp://127.0.0.1:0", "--admin-bind", "tcp://127.0.0.1:0"},
+                               log);
+  const Timer timer;
+  std::string text;
+  while (text.find("listening on") == std::string::npos) {
+    int status = 0;
+    if (waitpid(pid, &status, WNOHANG) == pid || timer.ElapsedSeconds() > timeout_s) {
+      kill(pid, SIGKILL);
+      waitpid(pid, &status, 0);
+      throw std::runtime_error(fmt::format("hscloc serve did not start (log {}):\n{}",
+                                           log.string(), FileTail(log, 1500)));
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    text = ReadFileText(log);
+  }
+  run.rss_mb = ProcessResidentMegabytes(pid);
+  // "loaded and verified map M from D in S s"
+  const size_t at = text.find(" s\n", text.find("loaded and verified map"));
+  const size_t from = text.rfind(" in ", at);
+  if (at != std::string::npos && from != std::string::npos) {
+    run.load_seconds = std::stod(text.substr(from + 4, at - from - 4));
+  }
+  kill(pid, SIGTERM);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  return run;
 }
 
 bool CanRun(const std::string& program) {

@@ -23,6 +23,18 @@ ChildRun RunChild(const std::vector<std::string>& args, const std::filesystem::p
 // Whether `program` is on PATH.
 bool CanRun(const std::string& program);
 
+// A server as an operator starts it: `hscloc serve` on loopback ports, measured once it listens.
+struct ServeRun {
+  double load_seconds = 0;  // load and verification of the map, as the server logs it
+  double rss_mb = 0;        // resident memory once serving, before any request
+  double baseline_rss_mb = 0;  // resident memory of `hscloc --version`: the process with no map
+};
+// Starts `hscloc serve --map map_dir` (its log in `log`), reads its memory once it listens, then
+// stops it with SIGTERM. Throws with the log's tail when it exits or does not listen within
+// `timeout_s`.
+ServeRun MeasureServe(const std::string& hscloc, const std::filesystem::path& map_dir,
+                      const std::filesystem::path& log, double timeout_s = 600);
+
 // Resident memory of this process.
 double ResidentMegabytes();
 // Bytes of the regular files under `dir`, leaving out files named in `exclude`.

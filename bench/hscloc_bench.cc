@@ -75,11 +75,13 @@ struct SyntheticMap {
   fs::path city;  // synth output: COLMAP model, features.h5, queries
   fs::path map;   // trained bundle
   json build;     // times, memory, sizes
+  std::string hscloc;  // the tool that made it, which serves it too
 };
 
 SyntheticMap MakeSyntheticMap(const BenchOptions& options, const std::string& preset,
                               double train_minutes) {
-  SyntheticMap result{preset, options.work / preset / "city", options.work / preset / "map", {}};
+  SyntheticMap result{preset, options.work / preset / "city", options.work / preset / "map", {},
+                      options.hscloc};
   const fs::path logs = options.work / preset / "logs";
   Step(fmt::format("{}: synth", preset));
   const ChildRun synth = RunChild(
@@ -119,6 +121,12 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
   row["images"] = map->scene().NumImages();
   row["observations"] = map->scene().NumObservations();
   row["sizes"] = BundleSizes(synthetic.map);
+  Step(fmt::format("{}: hscloc serve, load time and memory", synthetic.preset));
+  const ServeRun serve = MeasureServe(synthetic.hscloc, synthetic.map,
+                                      synthetic.map.parent_path() / "logs" / "serve.log");
+  row["serve_load_s"] = serve.load_seconds;
+  row["serve_rss_mb"] = serve.rss_mb;
+  row["process_baseline_rss_mb"] = serve.baseline_rss_mb;
   row["features_h5_bytes"] = fs::file_size(synthetic.city / "features.h5");
   const Localizer localizer(map, map->network());
   const auto features = OpenH5Features(synthetic.city / "features.h5");

@@ -263,7 +263,28 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
         row["query_p50_ms"].get<double>());
   }
   md << "\nTraining ran for a fixed time budget per preset (more in a full run); query p50 uses "
-        "the queries' own keypoints, K = 10, exhaustive, all cores.\n\n"
+        "the queries' own keypoints, K = 10, exhaustive, all cores.\n\n";
+
+  // What an operator provisions for: each number beside its bound (docs/deploy.md).
+  md << "## Serving a map\n\n"
+        "| preset | build-map peak (aachen: <= 4096 MB) | "
+        "`hscloc serve` resident (aachen: <= 1536 MB) | "
+        "above the process with no map (small: <= 200 MB) | process with no map | "
+        "load and verify (aachen: <= 5 s) |\n"
+        "| --- | --- | --- | --- | --- | --- |\n";
+  for (const json& row : results["scale"]) {
+    if (!row.contains("serve_rss_mb")) continue;
+    md << fmt::format("| {} | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.2f} s |\n",
+                      row["preset"].get<std::string>(), row["build_map_peak_mb"].get<double>(),
+                      row["serve_rss_mb"].get<double>(),
+                      row["serve_rss_mb"].get<double>() -
+                          row["process_baseline_rss_mb"].get<double>(),
+                      row["process_baseline_rss_mb"].get<double>(),
+                      row["serve_load_s"].get<double>());
+  }
+  md << "\nThe server is measured as an operator starts it (`hscloc serve --map`, the network "
+        "matcher, one worker per core) once it listens, before any request; the process with no "
+        "map is `hscloc --version`: the binary with its libraries (libtorch among them) loaded.\n\n"
         "## Micro-benchmarks\n\nGoogle Benchmark executables in `build/bench/`, run by hand: "
         "`hscloc_network_benchmark` (Predict at the Aachen shape with per-level times, training "
         "throughput, libtorch's GEMM peak), `hscloc_retrieval_benchmark` (VLAD encoding, flat and "
