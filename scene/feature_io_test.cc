@@ -106,9 +106,9 @@ TEST_F(SyntheticJoin, StreamedJoinAndIndicesMatchTheJoin) {
   // The streamed join checks what the join checks.
   reconstruction_.images[7].points2D[19].xy.x() += 0.01;
   EXPECT_THAT(testing::InvalidArgumentMessage([&] {
-                ForEachJoinedImage(reconstruction_, *features, {},
-                                   [](const Image&, const ImageFeatures&,
-                                      const std::vector<point2D_t>&) {});
+                ForEachJoinedImage(
+                    reconstruction_, *features, {},
+                    [](const Image&, const ImageFeatures&, const std::vector<point2D_t>&) {});
               }),
               HasSubstr("image 'a.jpg' (id 7), 2D point 19 (3D point 102)"));
 }
