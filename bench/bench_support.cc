@@ -111,8 +111,8 @@ ServeRun MeasureServe(const std::string& hscloc, const fs::path& map_dir, const 
     if (waitpid(pid, &status, WNOHANG) == pid || timer.ElapsedSeconds() > timeout_s) {
       kill(pid, SIGKILL);
       waitpid(pid, &status, 0);
-      throw std::runtime_error(fmt::format("hscloc serve did not start (log {}):\n{}",
-                                           log.string(), FileTail(log, 1500)));
+      throw std::runtime_error(fmt::format("hscloc serve did not start (log {}):\n{}", log.string(),
+                                           FileTail(log, 1500)));
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
     text = ReadFileText(log);

@@ -274,13 +274,12 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
         "| --- | --- | --- | --- | --- | --- |\n";
   for (const json& row : results["scale"]) {
     if (!row.contains("serve_rss_mb")) continue;
-    md << fmt::format("| {} | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.2f} s |\n",
-                      row["preset"].get<std::string>(), row["build_map_peak_mb"].get<double>(),
-                      row["serve_rss_mb"].get<double>(),
-                      row["serve_rss_mb"].get<double>() -
-                          row["process_baseline_rss_mb"].get<double>(),
-                      row["process_baseline_rss_mb"].get<double>(),
-                      row["serve_load_s"].get<double>());
+    md << fmt::format(
+        "| {} | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.2f} s |\n",
+        row["preset"].get<std::string>(), row["build_map_peak_mb"].get<double>(),
+        row["serve_rss_mb"].get<double>(),
+        row["serve_rss_mb"].get<double>() - row["process_baseline_rss_mb"].get<double>(),
+        row["process_baseline_rss_mb"].get<double>(), row["serve_load_s"].get<double>());
   }
   md << "\nThe server is measured as an operator starts it (`hscloc serve --map`, the network "
         "matcher, one worker per core) once it listens, before any request; the process with no "

@@ -184,13 +184,13 @@ MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& op
   int64_t descriptor_dim = 0;
   writer.AddBlob(map_blobs::kObservations, [&](std::ostream& s) {
     std::optional<SceneObservationsWriter> blob;
-    descriptor_dim = ForEachJoinedImage(
-        reconstruction, *features, options.join,
-        [&](const Image&, const ImageFeatures& image_features,
-            const std::vector<point2D_t>& keypoint_rows) {
-          if (!blob) blob.emplace(s, scene, image_features.Dimension());
-          blob->Append(image_features.descriptors(keypoint_rows, Eigen::all));
-        });
+    descriptor_dim =
+        ForEachJoinedImage(reconstruction, *features, options.join,
+                           [&](const Image&, const ImageFeatures& image_features,
+                               const std::vector<point2D_t>& keypoint_rows) {
+                             if (!blob) blob.emplace(s, scene, image_features.Dimension());
+                             blob->Append(image_features.descriptors(keypoint_rows, Eigen::all));
+                           });
     if (!blob) blob.emplace(s, scene, 0);
     blob->Finish();
   });

@@ -128,7 +128,8 @@ TEST(MapBundle, OpensOnlyTheBlobsAskedForAndNeverReadsTheOthers) {
   std::string corrupt = blobs.at("points3D.bin");
   corrupt[7] ^= 0x01;
   WriteFile(temp / "map" / "points3D.bin", corrupt);
-  MapBundle bundle = MapBundle::Open(temp / "map", std::vector<std::string>{"tree.bin", "x.bin"}, 2);
+  MapBundle bundle =
+      MapBundle::Open(temp / "map", std::vector<std::string>{"tree.bin", "x.bin"}, 2);
   EXPECT_TRUE(bundle.Blob("tree.bin") == blobs.at("tree.bin"));
   EXPECT_TRUE(bundle.HasBlob("points3D.bin"));
   EXPECT_EQ(bundle.BlobSize("points3D.bin"), blobs.at("points3D.bin").size());
@@ -141,9 +142,8 @@ TEST(MapBundle, OpensOnlyTheBlobsAskedForAndNeverReadsTheOthers) {
               HasSubstr("blob 'tree.bin' was not read"));
   // Asked for, the corrupt one is refused, whichever thread verifies it.
   for (const int threads : {1, 2, 8}) {
-    EXPECT_THAT(testing::InvalidArgumentMessage([&] {
-                  MapBundle::Open(temp / "map", std::nullopt, threads);
-                }),
+    EXPECT_THAT(testing::InvalidArgumentMessage(
+                    [&] { MapBundle::Open(temp / "map", std::nullopt, threads); }),
                 HasSubstr("blob 'points3D.bin' is corrupt (sha256 mismatch)"))
         << threads;
   }

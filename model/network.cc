@@ -255,11 +255,10 @@ LevelModulation LevelImpl::Generate(const torch::Tensor& image_indices,
                                     const torch::Tensor& parent_nodes) {
   torch::Tensor embedding = image_embedding_(image_indices);
   if (node_embedding_) {
-    embedding = embedding + torch::nn::functional::embedding(
-                                (parent_nodes - node_embedding_first_).clamp_min(0),
-                                node_embedding_->weight,
-                                torch::nn::functional::EmbeddingFuncOptions().sparse(
-                                    sparse_node_rows_));
+    embedding = embedding +
+                torch::nn::functional::embedding(
+                    (parent_nodes - node_embedding_first_).clamp_min(0), node_embedding_->weight,
+                    torch::nn::functional::EmbeddingFuncOptions().sparse(sparse_node_rows_));
   }
   for (int k = 0; k < static_cast<int>(label_embeddings_.size()); ++k) {
     embedding = embedding + label_embeddings_[k](prefix_labels.select(1, k));

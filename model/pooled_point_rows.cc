@@ -53,7 +53,8 @@ torch::Tensor CandidateScores(const torch::Tensor& projected, const torch::Tenso
   std::vector<torch::Tensor> pieces;
   for (int64_t begin = 0; begin < ranks.size(0); begin += per_piece) {
     const int64_t size = std::min(per_piece, ranks.size(0) - begin);
-    const torch::Tensor gathered = GatherRows(point_rows, ranks.narrow(0, begin, size), sparse_gradient);
+    const torch::Tensor gathered =
+        GatherRows(point_rows, ranks.narrow(0, begin, size), sparse_gradient);
     pieces.push_back((gathered * projected.index_select(0, rows.narrow(0, begin, size))).sum(1));
   }
   if (pieces.empty()) return torch::empty({0}, projected.options());

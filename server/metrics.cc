@@ -26,9 +26,7 @@ struct Endpoint {
     server = std::make_unique<MetricsHttpServer>(bind, option, [this] { return Text(); });
   }
 
-  std::string Text() const {
-    return prometheus::TextSerializer().Serialize(registry->Collect());
-  }
+  std::string Text() const { return prometheus::TextSerializer().Serialize(registry->Collect()); }
   const std::string& url() const {
     static const std::string kNone;
     return server == nullptr ? kNone : server->url();
@@ -50,8 +48,7 @@ prometheus::Histogram::BucketBoundaries DurationBuckets() {
 }
 
 double UnixSeconds() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch())
-      .count();
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
 }  // namespace
@@ -131,7 +128,8 @@ struct ServiceMetrics::Families {
                       .Register(registry)) {
     const char* stages[] = {"queue", "retrieval", "match", "visibility",
                             "pose",  "localize",  "server"};
-    for (int i = 0; i < 7; ++i) stage[i] = &durations.Add({{"stage", stages[i]}}, DurationBuckets());
+    for (int i = 0; i < 7; ++i)
+      stage[i] = &durations.Add({{"stage", stages[i]}}, DurationBuckets());
     map_loads.Add({{"outcome", "success"}});
     map_loads.Add({{"outcome", "failure"}});
   }
@@ -155,12 +153,9 @@ void ServiceMetrics::CountReply(const wire::Request& request, wire::Status statu
 
 void ServiceMetrics::ObserveLocalize(const StageTimings& timings, double queue_seconds,
                                      double server_seconds) {
-  const double seconds[7] = {queue_seconds,
-                             timings.retrieval_ms * 1e-3,
-                             timings.match_ms * 1e-3,
-                             timings.visibility_ms * 1e-3,
-                             timings.pose_ms * 1e-3,
-                             timings.total_ms * 1e-3,
+  const double seconds[7] = {queue_seconds,           timings.retrieval_ms * 1e-3,
+                             timings.match_ms * 1e-3, timings.visibility_ms * 1e-3,
+                             timings.pose_ms * 1e-3,  timings.total_ms * 1e-3,
                              server_seconds};
   for (int i = 0; i < 7; ++i) families_->stage[i]->Observe(seconds[i]);
 }

@@ -10,12 +10,14 @@
 //                                                     localize (the Localizer) and server (receipt
 //                                                     to reply), as histograms
 //            queue_depth, requests_in_flight, workers
-//            map_info{map_id} (1 for the map served), map_load_seconds, map_loaded_timestamp_seconds
-//            map_loads_total{outcome}                 every load of the map directory, the first
+//            map_info{map_id} (1 for the map served), map_load_seconds,
+//            map_loaded_timestamp_seconds map_loads_total{outcome}                 every load of
+//            the map directory, the first
 //                                                     included: success or failure
 //   broker   broker_requests_total{outcome}          answered, overloaded
 //            broker_queue_depth, broker_requests_in_flight, broker_workers, broker_worker_slots
-//            broker_workers_joined_total, broker_workers_dropped_total, broker_requests_retried_total
+//            broker_workers_joined_total, broker_workers_dropped_total,
+//            broker_requests_retried_total
 #pragma once
 
 #include <memory>

@@ -76,8 +76,8 @@ MetricsHttpServer::MetricsHttpServer(const std::string& bind, const std::string&
   std::string failure = "no address";
   for (const addrinfo* candidate = found; candidate != nullptr && listener_ < 0;
        candidate = candidate->ai_next) {
-    const int fd = socket(candidate->ai_family, candidate->ai_socktype | SOCK_CLOEXEC,
-                          candidate->ai_protocol);
+    const int fd =
+        socket(candidate->ai_family, candidate->ai_socktype | SOCK_CLOEXEC, candidate->ai_protocol);
     if (fd < 0) continue;
     const int reuse = 1;
     setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &reuse, sizeof(reuse));
@@ -95,9 +95,9 @@ MetricsHttpServer::MetricsHttpServer(const std::string& bind, const std::string&
   sockaddr_storage bound{};
   socklen_t length = sizeof(bound);
   getsockname(listener_, reinterpret_cast<sockaddr*>(&bound), &length);
-  const uint16_t port = ntohs(bound.ss_family == AF_INET6
-                                  ? reinterpret_cast<sockaddr_in6*>(&bound)->sin6_port
-                                  : reinterpret_cast<sockaddr_in*>(&bound)->sin_port);
+  const uint16_t port =
+      ntohs(bound.ss_family == AF_INET6 ? reinterpret_cast<sockaddr_in6*>(&bound)->sin6_port
+                                        : reinterpret_cast<sockaddr_in*>(&bound)->sin_port);
   const bool v6 = address.host.find(':') != std::string::npos;
   url_ = "http://" + (v6 ? "[" + address.host + "]" : address.host) + ":" + std::to_string(port) +
          "/metrics";
@@ -110,7 +110,8 @@ MetricsHttpServer::MetricsHttpServer(const std::string& bind, const std::string&
 
 MetricsHttpServer::~MetricsHttpServer() {
   const char stop = 1;
-  if (write(stop_pipe_[1], &stop, 1) != 1) spdlog::error("metrics endpoint: cannot stop its thread");
+  if (write(stop_pipe_[1], &stop, 1) != 1)
+    spdlog::error("metrics endpoint: cannot stop its thread");
   thread_.join();
   close(listener_);
   close(stop_pipe_[0]);
@@ -140,8 +141,8 @@ void MetricsHttpServer::Loop() {
 void MetricsHttpServer::Answer(int connection) const {
   std::string request;
   char buffer[1024];
-  while (request.find("\r\n\r\n") == std::string::npos && request.find("\n\n") == std::string::npos &&
-         request.size() < kMaxRequestBytes) {
+  while (request.find("\r\n\r\n") == std::string::npos &&
+         request.find("\n\n") == std::string::npos && request.size() < kMaxRequestBytes) {
     const ssize_t n = recv(connection, buffer, sizeof(buffer), 0);
     if (n <= 0) break;
     request.append(buffer, static_cast<size_t>(n));

@@ -15,8 +15,8 @@ namespace hscloc {
 namespace {
 
 using ::testing::HasSubstr;
-using ::testing::MatchesRegex;
 using testing::HttpGet;
+using ::testing::MatchesRegex;
 using testing::MetricSample;
 
 // promtool's verdict on an exposition: empty when it passes, else what it printed.
@@ -66,19 +66,18 @@ TEST(ServiceMetricsTest, AScrapeReadsTheCountsHistogramsAndGauges) {
   const std::string text = HttpGet(metrics.url());
   EXPECT_EQ(text, metrics.Text());
   EXPECT_EQ(MetricSample(text, R"(hscloc_requests_total{kind="localize",status="OK"})"), 3);
-  EXPECT_EQ(MetricSample(text, R"(hscloc_requests_total{kind="localize",status="OVERLOADED"})"),
-            1);
+  EXPECT_EQ(MetricSample(text, R"(hscloc_requests_total{kind="localize",status="OVERLOADED"})"), 1);
   EXPECT_EQ(MetricSample(text, R"(hscloc_requests_total{kind="health",status="OK"})"), 1);
   EXPECT_EQ(MetricSample(text, R"(hscloc_requests_total{kind="none",status="INVALID_REQUEST"})"),
             1);
   // Both matches fall in the 0.5 s bucket, one of them in the 0.05 s bucket.
   EXPECT_EQ(MetricSample(text, R"(hscloc_localize_duration_seconds_count{stage="match"})"), 2);
-  EXPECT_EQ(MetricSample(text, R"(hscloc_localize_duration_seconds_bucket{stage="match",le="0.05"})"),
-            1);
-  EXPECT_EQ(MetricSample(text, R"(hscloc_localize_duration_seconds_bucket{stage="match",le="0.5"})"),
-            2);
-  EXPECT_DOUBLE_EQ(
-      *MetricSample(text, R"(hscloc_localize_duration_seconds_sum{stage="server"})"), 0.46);
+  EXPECT_EQ(
+      MetricSample(text, R"(hscloc_localize_duration_seconds_bucket{stage="match",le="0.05"})"), 1);
+  EXPECT_EQ(
+      MetricSample(text, R"(hscloc_localize_duration_seconds_bucket{stage="match",le="0.5"})"), 2);
+  EXPECT_DOUBLE_EQ(*MetricSample(text, R"(hscloc_localize_duration_seconds_sum{stage="server"})"),
+                   0.46);
   EXPECT_EQ(MetricSample(text, "hscloc_queue_depth"), 5);
   EXPECT_EQ(MetricSample(text, "hscloc_requests_in_flight"), 2);
   EXPECT_EQ(MetricSample(text, "hscloc_workers"), 4);
@@ -135,8 +134,7 @@ TEST(ServiceMetricsTest, WithoutABindAddressTheyAreCountedNotExposed) {
   ServiceMetrics metrics("");
   EXPECT_EQ(metrics.url(), "");
   metrics.CountReply(RequestOfKind(wire::Request::kHealth), wire::OK);
-  EXPECT_EQ(MetricSample(metrics.Text(), R"(hscloc_requests_total{kind="health",status="OK"})"),
-            1);
+  EXPECT_EQ(MetricSample(metrics.Text(), R"(hscloc_requests_total{kind="health",status="OK"})"), 1);
 }
 
 TEST(ServiceMetricsTest, TheEndpointAnswersOtherPathsMethodsAndGarbageWithHttpErrors) {
