@@ -121,6 +121,10 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
   row["images"] = map->scene().NumImages();
   row["observations"] = map->scene().NumObservations();
   row["sizes"] = BundleSizes(synthetic.map);
+  row["held_out_curve"] = map->metadata()
+                              .value("network", json::object())
+                              .value("training", json::object())
+                              .value("held_out_checks", json::array());
   Step(fmt::format("{}: hscloc serve, load time and memory", synthetic.preset));
   const ServeRun serve = MeasureServe(synthetic.hscloc, synthetic.map,
                                       synthetic.map.parent_path() / "logs" / "serve.log");

@@ -69,6 +69,64 @@ std::string ScaleSvg(const json& scale) {
   return svg.str();
 }
 
+// Held-out point accuracy (masked decoding) against training wall time, one line per preset: how
+// long a map of that size needs. Time on a log axis, since the presets train for minutes to hours.
+std::string TrainingCurveSvg(const json& scale) {
+  const double width = 560, height = 300, x0 = 55, x1 = width - 110, y0 = height - 40, y1 = 20;
+  double min_seconds = 1e300, max_seconds = 1;
+  for (const json& row : scale) {
+    for (const json& check : row.value("held_out_curve", json::array())) {
+      min_seconds = std::min(min_seconds, std::max(1.0, check["seconds"].get<double>()));
+      max_seconds = std::max(max_seconds, check["seconds"].get<double>());
+    }
+  }
+  if (min_seconds > max_seconds) return "";
+  const double log_min = std::log10(min_seconds) - 0.1, log_max = std::log10(max_seconds) + 0.1;
+  const auto x_of = [&](double seconds) {
+    return x0 + (std::log10(std::max(1.0, seconds)) - log_min) / (log_max - log_min) * (x1 - x0);
+  };
+  const auto y_of = [&](double accuracy) { return y0 - accuracy * (y0 - y1); };
+  std::ostringstream svg;
+  svg << fmt::format(
+      "<svg xmlns='http://www.w3.org/2000/svg' width='{}' height='{}' font-family='sans-serif' "
+      "font-size='11'>\n",
+      width, height);
+  svg << fmt::format("<line x1='{0}' y1='{1}' x2='{2}' y2='{1}' stroke='black'/>\n", x0, y0, x1);
+  svg << fmt::format("<line x1='{0}' y1='{1}' x2='{0}' y2='{2}' stroke='black'/>\n", x0, y0, y1);
+  for (const double accuracy : {0.0, 0.5, 1.0}) {
+    svg << fmt::format("<text x='{}' y='{:.1f}' text-anchor='end'>{:.0f}%</text>\n", x0 - 4,
+                       y_of(accuracy) + 4, 100 * accuracy);
+  }
+  for (double decade = std::pow(10.0, std::ceil(log_min)); decade <= max_seconds * 1.26;
+       decade *= 10) {
+    svg << fmt::format("<text x='{:.1f}' y='{}' text-anchor='middle'>{:g} s</text>\n",
+                       x_of(decade), y0 + 14, decade);
+  }
+  svg << fmt::format(
+      "<text x='{}' y='{}' text-anchor='middle'>training wall time (log), 2 cores</text>\n",
+      (x0 + x1) / 2, height - 6);
+  const char* colors[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728"};
+  size_t line = 0;
+  for (const json& row : scale) {
+    const json curve = row.value("held_out_curve", json::array());
+    if (curve.empty()) continue;
+    const char* color = colors[line % 4];
+    std::string path;
+    for (const json& check : curve) {
+      const double x = x_of(check["seconds"].get<double>());
+      const double y = y_of(check["point_accuracy"].get<double>());
+      path += fmt::format("{}{:.1f},{:.1f}", path.empty() ? "M" : " L", x, y);
+      svg << fmt::format("<circle cx='{:.1f}' cy='{:.1f}' r='2.5' fill='{}'/>\n", x, y, color);
+    }
+    svg << fmt::format("<path d='{}' fill='none' stroke='{}'/>\n", path, color);
+    svg << fmt::format("<text x='{}' y='{}' fill='{}'>{}</text>\n", x1 + 10, y1 + 14 * (line + 1),
+                       color, row["preset"].get<std::string>());
+    ++line;
+  }
+  svg << "</svg>\n";
+  return svg.str();
+}
+
 std::string Percent(const json& fractions, size_t i) {
   return fractions.is_array() && i < fractions.size()
              ? fmt::format("{:.0f}%", 100 * fractions[i].get<double>())
@@ -266,6 +324,33 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
         "the queries' own keypoints, K = 10, exhaustive, all cores.\n\n";
 
   // What an operator provisions for: each number beside its bound (docs/deploy.md).
+  md << "## Time to accuracy\n\n![time to accuracy](performance_training.svg)\n\n"
+        "| preset | first check at 90 % or more | last check | best check |\n"
+        "| --- | --- | --- | --- |\n";
+  for (const json& row : results["scale"]) {
+    const json curve = row.value("held_out_curve", json::array());
+    if (curve.empty()) continue;
+    std::string first_90 = "never";
+    const json* best = &curve.front();
+    for (const json& check : curve) {
+      if (first_90 == "never" && check["point_accuracy"].get<double>() >= 0.9) {
+        first_90 = fmt::format("{:.0f} s (step {})", check["seconds"].get<double>(),
+                               check["iteration"].get<int64_t>());
+      }
+      if (check["point_accuracy"].get<double>() > (*best)["point_accuracy"].get<double>()) {
+        best = &check;
+      }
+    }
+    const auto describe = [](const json& check) {
+      return fmt::format("{:.1f} % at {:.0f} s", 100 * check["point_accuracy"].get<double>(),
+                         check["seconds"].get<double>());
+    };
+    md << fmt::format("| {} | {} | {} | {} |\n", row["preset"].get<std::string>(), first_90,
+                      describe(curve.back()), describe(*best));
+  }
+  md << "\nHeld-out point accuracy: the network's leaf for held-out observations of the map, "
+        "decoded with the visibility mask of their image, as `hscloc train` checks it.\n\n";
+
   md << "## Serving a map\n\n"
         "| preset | build-map peak (aachen: <= 4096 MB) | "
         "`hscloc serve` resident (aachen: <= 1536 MB) | "
@@ -291,6 +376,8 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
         "and without early stop, beside OpenCV's USAC) and `hscloc_map_load_benchmark` (bundle "
         "verification and loading).\n";
   std::ofstream(report_path.parent_path() / "performance_scale.svg") << ScaleSvg(results["scale"]);
+  std::ofstream(report_path.parent_path() / "performance_training.svg")
+      << TrainingCurveSvg(results["scale"]);
   return md.str();
 }
 

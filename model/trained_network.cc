@@ -102,6 +102,14 @@ void WriteNetworkToBundle(
       {"training_observations", result.num_training_observations},
       {"held_out_observations", result.num_held_out_observations},
       {"device", ComputeDeviceName(options.device)}};
+  // The time-to-accuracy curve of this training (hscloc-bench draws it per map size).
+  nlohmann::json checks = nlohmann::json::array();
+  for (const HeldOutCheck& check : result.held_out_checks) {
+    checks.push_back({{"iteration", check.iteration},
+                      {"seconds", check.seconds},
+                      {"point_accuracy", check.point_accuracy}});
+  }
+  json["training"]["held_out_checks"] = checks;
   nlohmann::json evaluation_json = nlohmann::json::object();
   for (const auto& [name, evaluation] : evaluations) {
     evaluation_json[name] = {{"observations", evaluation.num_observations},

@@ -347,6 +347,13 @@ TEST_F(TinyCityTrainerTest, WritesTheNetworkIntoTheBundle) {
   EXPECT_EQ(metadata["training"]["iterations"], 20);
   EXPECT_EQ(metadata["options"]["channels"], 128);
   EXPECT_EQ(metadata["evaluations"]["held_out"]["observations"], held_out.num_observations);
+  // The held-out curve, check by check.
+  const nlohmann::json& checks = metadata["training"]["held_out_checks"];
+  ASSERT_EQ(checks.size(), result.held_out_checks.size());
+  ASSERT_FALSE(checks.empty());
+  EXPECT_EQ(checks.back()["iteration"], result.held_out_checks.back().iteration);
+  EXPECT_EQ(checks.back()["point_accuracy"], result.held_out_checks.back().point_accuracy);
+  EXPECT_EQ(checks.back()["seconds"], result.held_out_checks.back().seconds);
   EXPECT_THAT(bundle.Blob(map_blobs::kTrainingLog),
               ::testing::StartsWith("iteration,seconds,learning_rate,loss,accuracy_level1"));
 
