@@ -76,6 +76,11 @@ TEST(ScaleOutTest, AKilledWorkerLosesNoRequest) {
   for (std::thread& client : clients) client.join();
   EXPECT_EQ(answered.load(), requests.size());
   EXPECT_EQ(localized.load(), requests.size());
+  // The broker drops the killed worker after heartbeat_liveness silent intervals (0.8 s); the
+  // other worker may have answered everything before that.
+  for (int wait = 0; wait < 100 && broker.workers_dropped() == 0; ++wait) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
   EXPECT_EQ(broker.workers_dropped(), 1u);
   std::cout << fmt::format("{} requests answered; the broker retried {} after the kill\n",
                            answered.load(), broker.requests_retried());
