@@ -99,8 +99,8 @@ std::string TrainingCurveSvg(const json& scale) {
   }
   for (double decade = std::pow(10.0, std::ceil(log_min)); decade <= max_seconds * 1.26;
        decade *= 10) {
-    svg << fmt::format("<text x='{:.1f}' y='{}' text-anchor='middle'>{:g} s</text>\n",
-                       x_of(decade), y0 + 14, decade);
+    svg << fmt::format("<text x='{:.1f}' y='{}' text-anchor='middle'>{:g} s</text>\n", x_of(decade),
+                       y0 + 14, decade);
   }
   svg << fmt::format(
       "<text x='{}' y='{}' text-anchor='middle'>training wall time (log), 2 cores</text>\n",
@@ -323,61 +323,73 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
   md << "\nTraining ran for a fixed time budget per preset (more in a full run); query p50 uses "
         "the queries' own keypoints, K = 10, exhaustive, all cores.\n\n";
 
-  // What an operator provisions for: each number beside its bound (docs/deploy.md).
-  md << "## Time to accuracy\n\n![time to accuracy](performance_training.svg)\n\n"
-        "| preset | first check at 90 % or more | last check | best check |\n"
-        "| --- | --- | --- | --- |\n";
-  for (const json& row : results["scale"]) {
-    const json curve = row.value("held_out_curve", json::array());
-    if (curve.empty()) continue;
-    std::string first_90 = "never";
-    const json* best = &curve.front();
-    for (const json& check : curve) {
-      if (first_90 == "never" && check["point_accuracy"].get<double>() >= 0.9) {
-        first_90 = fmt::format("{:.0f} s (step {})", check["seconds"].get<double>(),
-                               check["iteration"].get<int64_t>());
-      }
-      if (check["point_accuracy"].get<double>() > (*best)["point_accuracy"].get<double>()) {
-        best = &check;
-      }
+  // Sections of numbers that older reports (their JSON) do not hold appear once measured.
+  const auto any_row_has = [&](const char* key) {
+    for (const json& row : results["scale"]) {
+      if (row.contains(key) && !row[key].empty()) return true;
     }
-    const auto describe = [](const json& check) {
-      return fmt::format("{:.1f} % at {:.0f} s", 100 * check["point_accuracy"].get<double>(),
-                         check["seconds"].get<double>());
-    };
-    md << fmt::format("| {} | {} | {} | {} |\n", row["preset"].get<std::string>(), first_90,
-                      describe(curve.back()), describe(*best));
+    return false;
+  };
+  if (any_row_has("held_out_curve")) {
+    md << "## Time to accuracy\n\n![time to accuracy](performance_training.svg)\n\n"
+          "| preset | first check at 90 % or more | last check | best check |\n"
+          "| --- | --- | --- | --- |\n";
+    for (const json& row : results["scale"]) {
+      const json curve = row.value("held_out_curve", json::array());
+      if (curve.empty()) continue;
+      std::string first_90 = "never";
+      const json* best = &curve.front();
+      for (const json& check : curve) {
+        if (first_90 == "never" && check["point_accuracy"].get<double>() >= 0.9) {
+          first_90 = fmt::format("{:.0f} s (step {})", check["seconds"].get<double>(),
+                                 check["iteration"].get<int64_t>());
+        }
+        if (check["point_accuracy"].get<double>() > (*best)["point_accuracy"].get<double>()) {
+          best = &check;
+        }
+      }
+      const auto describe = [](const json& check) {
+        return fmt::format("{:.1f} % at {:.0f} s", 100 * check["point_accuracy"].get<double>(),
+                           check["seconds"].get<double>());
+      };
+      md << fmt::format("| {} | {} | {} | {} |\n", row["preset"].get<std::string>(), first_90,
+                        describe(curve.back()), describe(*best));
+    }
+    md << "\nHeld-out point accuracy: the network's leaf for held-out observations of the map, "
+          "decoded with the visibility mask of their image, as `hscloc train` checks it.\n\n";
+    std::ofstream(report_path.parent_path() / "performance_training.svg")
+        << TrainingCurveSvg(results["scale"]);
   }
-  md << "\nHeld-out point accuracy: the network's leaf for held-out observations of the map, "
-        "decoded with the visibility mask of their image, as `hscloc train` checks it.\n\n";
 
-  md << "## Serving a map\n\n"
-        "| preset | build-map peak (aachen: <= 4096 MB) | "
-        "`hscloc serve` resident (aachen: <= 1536 MB) | "
-        "above the process with no map (small: <= 200 MB) | process with no map | "
-        "load and verify (aachen: <= 5 s) |\n"
-        "| --- | --- | --- | --- | --- | --- |\n";
-  for (const json& row : results["scale"]) {
-    if (!row.contains("serve_rss_mb")) continue;
-    md << fmt::format(
-        "| {} | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.2f} s |\n",
-        row["preset"].get<std::string>(), row["build_map_peak_mb"].get<double>(),
-        row["serve_rss_mb"].get<double>(),
-        row["serve_rss_mb"].get<double>() - row["process_baseline_rss_mb"].get<double>(),
-        row["process_baseline_rss_mb"].get<double>(), row["serve_load_s"].get<double>());
+  // What an operator provisions for: each number beside its bound (docs/deploy.md).
+  if (any_row_has("serve_rss_mb")) {
+    md << "## Serving a map\n\n"
+          "| preset | build-map peak (aachen: <= 4096 MB) | "
+          "`hscloc serve` resident (aachen: <= 1536 MB) | "
+          "above the process with no map (small: <= 200 MB) | process with no map | "
+          "load and verify (aachen: <= 5 s) |\n"
+          "| --- | --- | --- | --- | --- | --- |\n";
+    for (const json& row : results["scale"]) {
+      if (!row.contains("serve_rss_mb")) continue;
+      md << fmt::format(
+          "| {} | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.0f} MB | {:.2f} s |\n",
+          row["preset"].get<std::string>(), row["build_map_peak_mb"].get<double>(),
+          row["serve_rss_mb"].get<double>(),
+          row["serve_rss_mb"].get<double>() - row["process_baseline_rss_mb"].get<double>(),
+          row["process_baseline_rss_mb"].get<double>(), row["serve_load_s"].get<double>());
+    }
+    md << "\nThe server is measured as an operator starts it (`hscloc serve --map`, the network "
+          "matcher, one worker per core) once it listens, before any request; the process with "
+          "no map is `hscloc --version`: the binary with its libraries (libtorch among them) "
+          "loaded.\n\n";
   }
-  md << "\nThe server is measured as an operator starts it (`hscloc serve --map`, the network "
-        "matcher, one worker per core) once it listens, before any request; the process with no "
-        "map is `hscloc --version`: the binary with its libraries (libtorch among them) loaded.\n\n"
-        "## Micro-benchmarks\n\nGoogle Benchmark executables in `build/bench/`, run by hand: "
+  md << "## Micro-benchmarks\n\nGoogle Benchmark executables in `build/bench/`, run by hand: "
         "`hscloc_network_benchmark` (Predict at the Aachen shape with per-level times, training "
         "throughput, libtorch's GEMM peak), `hscloc_retrieval_benchmark` (VLAD encoding, flat and "
         "IVF-PQ search), `hscloc_absolute_pose_benchmark` (RANSAC at 50, 20 and 10% inliers, with "
         "and without early stop, beside OpenCV's USAC) and `hscloc_map_load_benchmark` (bundle "
         "verification and loading).\n";
   std::ofstream(report_path.parent_path() / "performance_scale.svg") << ScaleSvg(results["scale"]);
-  std::ofstream(report_path.parent_path() / "performance_training.svg")
-      << TrainingCurveSvg(results["scale"]);
   return md.str();
 }
 
