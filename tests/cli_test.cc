@@ -147,6 +147,20 @@ TEST_F(CliTest, ClientBatchThroughTheServerEqualsOfflineLocalize) {
 
 // hscloc-client's global options are read on either side of the subcommand: the timeout error
 // names the endpoint and the timeout given after it.
+TEST(HsclocCliTest, LogLevelWorksOnEitherSideOfTheSubcommand) {
+  testing::TempDir temp;
+  const fs::path log = temp.path() / "inspect.log";
+  for (const std::string& arguments : {std::string("--log-level bogus inspect /no/such/map"),
+                                       std::string("inspect /no/such/map --log-level bogus")}) {
+    EXPECT_EQ(Hscloc(arguments, log), 2) << arguments;
+    EXPECT_THAT(ReadText(log), HasSubstr("unknown log level 'bogus'")) << arguments;
+  }
+  // A known level after the subcommand is taken: the command runs (and names the missing map).
+  EXPECT_EQ(Hscloc("inspect /no/such/map --log-level warn", log), 2);
+  EXPECT_THAT(ReadText(log), HasSubstr("/no/such/map"));
+  EXPECT_THAT(ReadText(log), ::testing::Not(HasSubstr("log level")));
+}
+
 TEST(ClientCliTest, GlobalOptionsWorkOnEitherSideOfTheSubcommand) {
   testing::TempDir temp;
   const fs::path log = temp.path() / "health.log";

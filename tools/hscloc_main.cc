@@ -16,6 +16,9 @@ int main(int argc, char** argv) {
   CLI::App app{
       "hscloc: city-scale visual localization (hierarchical scene coordinate classification)"};
   app.require_subcommand(1);
+  // --log-level works on either side of the subcommand (`train ... --log-level warn`): what a
+  // subcommand does not know falls through to the tool. Subcommands inherit this when added.
+  app.fallthrough();
   std::string log_level = "info";
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error or off")
       ->capture_default_str();
