@@ -1,0 +1,39 @@
+#!/usr/bin/env python3
+"""Checks that the performance report shows the time-to-accuracy and serving sections once its
+numbers hold them: adds a held-out curve and a server's measurements to the first scale row of
+docs/performance.json, regenerates the report from it and reads the sections back.
+Usage: check_report_sections.py HSCLOC_BENCH PERFORMANCE_JSON WORK_DIR"""
+import json
+import pathlib
+import subprocess
+import sys
+
+bench, source, work = sys.argv[1], pathlib.Path(sys.argv[2]), pathlib.Path(sys.argv[3])
+work.mkdir(parents=True, exist_ok=True)
+results = json.loads(source.read_text())
+row = results["scale"][0]
+row["held_out_curve"] = [
+    {"iteration": 100, "seconds": 30.0, "point_accuracy": 0.62},
+    {"iteration": 200, "seconds": 61.0, "point_accuracy": 0.93},
+    {"iteration": 300, "seconds": 95.0, "point_accuracy": 0.91},
+]
+row.update({"serve_rss_mb": 235.0, "process_baseline_rss_mb": 167.0, "serve_load_s": 0.15})
+(work / "performance.json").write_text(json.dumps(results))
+subprocess.run([bench, "--from-json", "--json", str(work / "performance.json"), "--report",
+                str(work / "performance.md")], check=True, stderr=subprocess.DEVNULL)
+report = (work / "performance.md").read_text()
+preset = row["preset"]
+expected = [
+    "## Time to accuracy",
+    f"| {preset} | 61 s (step 200) | 91.0 % at 95 s | 93.0 % at 61 s |",
+    "## Serving a map",
+    f"| {preset} | {row['build_map_peak_mb']:.0f} MB | 235 MB | 68 MB | 167 MB | 0.15 s |",
+]
+errors = [f"missing: {line}" for line in expected if line not in report]
+svg = work / "performance_training.svg"
+if not svg.exists() or svg.read_text().count("<path") != 1:
+    errors.append("performance_training.svg: expected one curve")
+if errors:
+    print("\n".join(errors))
+    sys.exit(1)
+print("report: time-to-accuracy and serving sections as measured")
