@@ -157,11 +157,20 @@ void CheckpointReader::RestoreOptimizers(torch::optim::Adam& optimizer,
   if (!archive_.try_read("optimizer", optimizer_archive)) {
     ThrowInvalidArgument("{}: checkpoint without optimizer state", source_);
   }
-  optimizer.load(optimizer_archive);
-  for (size_t i = 0; i < lazy.size(); ++i) {
-    archive_.read(fmt::format("lazy_adam{}_m", i), lazy[i].first_moment);
-    archive_.read(fmt::format("lazy_adam{}_v", i), lazy[i].second_moment);
-    lazy[i].steps = ReadScalar(fmt::format("lazy_adam{}_steps", i));
+  // A checkpoint of another build may split the parameters between dense and lazy Adam otherwise
+  // (the conditioning embeddings moved to lazy Adam): that is named, not a libtorch trace.
+  try {
+    optimizer.load(optimizer_archive);
+    for (size_t i = 0; i < lazy.size(); ++i) {
+      archive_.read(fmt::format("lazy_adam{}_m", i), lazy[i].first_moment);
+      archive_.read(fmt::format("lazy_adam{}_v", i), lazy[i].second_moment);
+      lazy[i].steps = ReadScalar(fmt::format("lazy_adam{}_steps", i));
+    }
+  } catch (const c10::Error& error) {
+    ThrowInvalidArgument(
+        "{}: the optimizer state does not fit this network's training (a checkpoint of another "
+        "hscloc version? train without --resume): {}",
+        source_, error.what_without_backtrace());
   }
 }
 
