@@ -25,8 +25,8 @@ bool CanRun(const std::string& program);
 
 // A server as an operator starts it: `hscloc serve` on loopback ports, measured once it listens.
 struct ServeRun {
-  double load_seconds = 0;  // load and verification of the map, as the server logs it
-  double rss_mb = 0;        // resident memory once serving, before any request
+  double load_seconds = 0;     // load and verification of the map, as the server logs it
+  double rss_mb = 0;           // resident memory once serving, before any request
   double baseline_rss_mb = 0;  // resident memory of `hscloc --version`: the process with no map
 };
 // Starts `hscloc serve --map map_dir` (its log in `log`), reads its memory once it listens, then

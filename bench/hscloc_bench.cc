@@ -72,16 +72,16 @@ std::string CpuModel() {
 
 struct SyntheticMap {
   std::string preset;
-  fs::path city;  // synth output: COLMAP model, features.h5, queries
-  fs::path map;   // trained bundle
-  json build;     // times, memory, sizes
+  fs::path city;       // synth output: COLMAP model, features.h5, queries
+  fs::path map;        // trained bundle
+  json build;          // times, memory, sizes
   std::string hscloc;  // the tool that made it, which serves it too
 };
 
 SyntheticMap MakeSyntheticMap(const BenchOptions& options, const std::string& preset,
                               double train_minutes) {
-  SyntheticMap result{preset, options.work / preset / "city", options.work / preset / "map", {},
-                      options.hscloc};
+  SyntheticMap result{
+      preset, options.work / preset / "city", options.work / preset / "map", {}, options.hscloc};
   const fs::path logs = options.work / preset / "logs";
   Step(fmt::format("{}: synth", preset));
   const ChildRun synth = RunChild(

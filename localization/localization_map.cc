@@ -54,9 +54,9 @@ std::shared_ptr<const LocalizationMap> LocalizationMap::Load(
     const std::filesystem::path& bundle_dir, const LocalizationMapLoadOptions& options) {
   // Only the blobs this map needs are read and verified: a serving map skips the observations'
   // descriptors (most of a map's bytes), a map without its network skips the network.
-  std::vector<std::string> blobs = {map_blobs::kScene,     map_blobs::kLabelTree,
-                                    map_blobs::kVisibility, map_blobs::kVlad,
-                                    map_blobs::kGlobalDescriptors, map_blobs::kGlobalIndex};
+  std::vector<std::string> blobs = {
+      map_blobs::kScene, map_blobs::kLabelTree,         map_blobs::kVisibility,
+      map_blobs::kVlad,  map_blobs::kGlobalDescriptors, map_blobs::kGlobalIndex};
   if (options.load_observations) blobs.push_back(map_blobs::kObservations);
   if (options.load_network) blobs.push_back(map_blobs::kNetwork);
   MapBundle bundle = MapBundle::Open(bundle_dir, blobs);

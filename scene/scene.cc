@@ -49,8 +49,7 @@ Scene Scene::FromReconstruction(const Reconstruction& reconstruction, Observatio
   const bool indices_only = observations.descriptors.size() == 0;
   if (observations.keypoint_indices.size() != num_observations ||
       observations.point3D_ids.size() != num_observations ||
-      (!indices_only &&
-       static_cast<size_t>(observations.descriptors.rows()) != num_observations)) {
+      (!indices_only && static_cast<size_t>(observations.descriptors.rows()) != num_observations)) {
     ThrowInvalidArgument(
         "observations: {} image ids, {} keypoint indices, {} point3D ids and {} descriptors",
         num_observations, observations.keypoint_indices.size(), observations.point3D_ids.size(),

@@ -73,9 +73,9 @@ int RunCommand(const std::string& command, const std::string& log_path = "");
   }                                                                             \
   const std::string variable = *variable##_optional
 
-#define HSCLOC_REQUIRE_PROMTOOL(variable)                                                   \
-  const auto variable##_optional = ::hscloc::testing::PromtoolExecutable();                 \
-  if (!variable##_optional) {                                                               \
-    GTEST_SKIP() << "promtool was not found (apt-get install prometheus)";                  \
-  }                                                                                         \
+#define HSCLOC_REQUIRE_PROMTOOL(variable)                                   \
+  const auto variable##_optional = ::hscloc::testing::PromtoolExecutable(); \
+  if (!variable##_optional) {                                               \
+    GTEST_SKIP() << "promtool was not found (apt-get install prometheus)";  \
+  }                                                                         \
   const std::string variable = *variable##_optional
