@@ -51,6 +51,17 @@ double UnixSeconds() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
+// A metric without labels, the only one of its family.
+prometheus::Gauge& SingleGauge(prometheus::Registry& registry, const std::string& name,
+                               const std::string& help) {
+  return BuildGauge().Name(name).Help(help).Register(registry).Add({});
+}
+
+prometheus::Counter& SingleCounter(prometheus::Registry& registry, const std::string& name,
+                                   const std::string& help) {
+  return BuildCounter().Name(name).Help(help).Register(registry).Add({});
+}
+
 }  // namespace
 
 std::string_view RequestKindName(const wire::Request& request) {
@@ -92,35 +103,19 @@ struct ServiceMetrics::Families {
                       .Help("Localize requests: time per stage (queue: waiting for a worker; "
                             "localize: the Localizer's total; server: receipt to reply)")
                       .Register(registry)),
-        queue_depth(BuildGauge()
-                        .Name("hscloc_queue_depth")
-                        .Help("Localize requests waiting for a worker")
-                        .Register(registry)
-                        .Add({})),
-        in_flight(BuildGauge()
-                      .Name("hscloc_requests_in_flight")
-                      .Help("Localize requests being localized")
-                      .Register(registry)
-                      .Add({})),
-        workers(BuildGauge()
-                    .Name("hscloc_workers")
-                    .Help("Worker threads of this process")
-                    .Register(registry)
-                    .Add({})),
+        queue_depth(
+            SingleGauge(registry, "hscloc_queue_depth", "Localize requests waiting for a worker")),
+        in_flight(SingleGauge(registry, "hscloc_requests_in_flight",
+                              "Localize requests being localized")),
+        workers(SingleGauge(registry, "hscloc_workers", "Worker threads of this process")),
         map_info(BuildGauge()
                      .Name("hscloc_map_info")
                      .Help("1 for the map this process serves, labelled by its id")
                      .Register(registry)),
-        map_load_seconds(BuildGauge()
-                             .Name("hscloc_map_load_seconds")
-                             .Help("Time to load and verify the map served")
-                             .Register(registry)
-                             .Add({})),
-        map_loaded_timestamp(BuildGauge()
-                                 .Name("hscloc_map_loaded_timestamp_seconds")
-                                 .Help("When the map served was loaded (Unix time)")
-                                 .Register(registry)
-                                 .Add({})),
+        map_load_seconds(SingleGauge(registry, "hscloc_map_load_seconds",
+                                     "Time to load and verify the map served")),
+        map_loaded_timestamp(SingleGauge(registry, "hscloc_map_loaded_timestamp_seconds",
+                                         "When the map served was loaded (Unix time)")),
         map_loads(BuildCounter()
                       .Name("hscloc_map_loads_total")
                       .Help("Loads of the map directory (start and reloads), by outcome; a "
@@ -201,41 +196,20 @@ struct BrokerMetrics::Families {
   Families(prometheus::Registry& registry, prometheus::Family<prometheus::Counter>& requests)
       : answered(requests.Add({{"outcome", "answered"}})),
         overloaded(requests.Add({{"outcome", "overloaded"}})),
-        queue_depth(BuildGauge()
-                        .Name("hscloc_broker_queue_depth")
-                        .Help("Requests waiting for a free worker slot: what to scale on")
-                        .Register(registry)
-                        .Add({})),
-        in_flight(BuildGauge()
-                      .Name("hscloc_broker_requests_in_flight")
-                      .Help("Requests handed to a worker and not yet answered")
-                      .Register(registry)
-                      .Add({})),
-        workers(BuildGauge()
-                    .Name("hscloc_broker_workers")
-                    .Help("Workers heartbeating to the broker")
-                    .Register(registry)
-                    .Add({})),
-        slots(BuildGauge()
-                  .Name("hscloc_broker_worker_slots")
-                  .Help("Requests the workers take at once, in all")
-                  .Register(registry)
-                  .Add({})),
-        joined(BuildCounter()
-                   .Name("hscloc_broker_workers_joined_total")
-                   .Help("Workers that announced themselves")
-                   .Register(registry)
-                   .Add({})),
-        dropped(BuildCounter()
-                    .Name("hscloc_broker_workers_dropped_total")
-                    .Help("Workers dropped after missing their heartbeats")
-                    .Register(registry)
-                    .Add({})),
-        retried(BuildCounter()
-                    .Name("hscloc_broker_requests_retried_total")
-                    .Help("Requests a dropped worker held, handed to another")
-                    .Register(registry)
-                    .Add({})) {}
+        queue_depth(SingleGauge(registry, "hscloc_broker_queue_depth",
+                                "Requests waiting for a free worker slot: what to scale on")),
+        in_flight(SingleGauge(registry, "hscloc_broker_requests_in_flight",
+                              "Requests handed to a worker and not yet answered")),
+        workers(
+            SingleGauge(registry, "hscloc_broker_workers", "Workers heartbeating to the broker")),
+        slots(SingleGauge(registry, "hscloc_broker_worker_slots",
+                          "Requests the workers take at once, in all")),
+        joined(SingleCounter(registry, "hscloc_broker_workers_joined_total",
+                             "Workers that announced themselves")),
+        dropped(SingleCounter(registry, "hscloc_broker_workers_dropped_total",
+                              "Workers dropped after missing their heartbeats")),
+        retried(SingleCounter(registry, "hscloc_broker_requests_retried_total",
+                              "Requests a dropped worker held, handed to another")) {}
 };
 
 BrokerMetrics::BrokerMetrics(const std::string& bind, const std::string& option)
