@@ -4,6 +4,7 @@
 
 #include <array>
 
+#include "geometry/essential_matrix.h"
 #include "util/check.h"
 
 namespace hscloc {
@@ -74,13 +75,6 @@ std::vector<uint32_t> MatchBlob(image_t image_id1, image_t image_id2,
     blob.push_back(swap ? match.point2D_idx1 : match.point2D_idx2);
   }
   return blob;
-}
-
-Eigen::Matrix3d EssentialMatrix(const Rigid3d& cam2_from_cam1) {
-  const Eigen::Vector3d& t = cam2_from_cam1.translation;
-  Eigen::Matrix3d t_cross;
-  t_cross << 0, -t.z(), t.y(), t.z(), 0, -t.x(), -t.y(), t.x(), 0;
-  return t_cross * cam2_from_cam1.rotation.toRotationMatrix();
 }
 
 // Row-major, as COLMAP writes Eigen matrices into blobs.

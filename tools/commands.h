@@ -10,6 +10,7 @@ using CommandRunner = std::function<int()>;
 
 void AddSynthCommand(CLI::App& app, CommandRunner& run);
 void AddExtractCommand(CLI::App& app, CommandRunner& run);
+void AddTriangulateCommand(CLI::App& app, CommandRunner& run);
 void AddBuildMapCommand(CLI::App& app, CommandRunner& run);
 void AddInspectCommand(CLI::App& app, CommandRunner& run);
 void AddTrainCommand(CLI::App& app, CommandRunner& run);

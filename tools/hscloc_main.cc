@@ -27,6 +27,7 @@ int main(int argc, char** argv) {
   hscloc::CommandRunner run;
   hscloc::AddSynthCommand(app, run);
   hscloc::AddExtractCommand(app, run);
+  hscloc::AddTriangulateCommand(app, run);
   hscloc::AddBuildMapCommand(app, run);
   hscloc::AddInspectCommand(app, run);
   hscloc::AddTrainCommand(app, run);

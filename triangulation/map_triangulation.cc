@@ -1,0 +1,225 @@
+#include "triangulation/map_triangulation.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <atomic>
+#include <map>
+#include <memory>
+#include <set>
+
+#include "scene/colmap_database_writer.h"
+#include "scene/colmap_io.h"
+#include "scene/feature_io.h"
+#include "util/check.h"
+#include "util/parallel.h"
+#include "util/progress_bar.h"
+#include "util/timer.h"
+
+namespace hscloc {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct ImageData {
+  ImageFeatures features;
+  PosedKeypoints posed;
+};
+
+ProgressBar::Display Display(bool show) {
+  return show ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever;
+}
+
+// Every model image's features, checked against its camera, and its undistorted keypoints.
+std::map<image_t, ImageData> ReadImageFeatures(const Reconstruction& model,
+                                               const FeatureReader& reader, bool show_progress) {
+  std::vector<std::string> missing;
+  for (const auto& [image_id, image] : model.images) {
+    if (!reader.HasImage(image.name)) missing.push_back(image.name);
+  }
+  if (!missing.empty()) {
+    ThrowInvalidArgument(
+        "{} has no features for {} of the model's {} images: {}{}", reader.path().string(),
+        missing.size(), model.images.size(),
+        fmt::join(missing.begin(), missing.begin() + std::min<size_t>(5, missing.size()), ", "),
+        missing.size() > 5 ? ", ..." : "");
+  }
+  std::map<image_t, ImageData> images;
+  ProgressBar progress("reading features", model.images.size(), Display(show_progress));
+  int64_t dimension = -1;
+  for (const auto& [image_id, image] : model.images) {
+    ImageData data;
+    data.features = reader.Read(image.name);
+    const Camera& camera = model.cameras.at(image.camera_id);
+    for (int64_t i = 0; i < data.features.NumKeypoints(); ++i) {
+      const Eigen::Vector2d pixel = data.features.keypoints.row(i).cast<double>().transpose();
+      if (!camera.IsInside(pixel)) {
+        ThrowInvalidArgument(
+            "{}, image '{}': keypoint {} at ({:.1f}, {:.1f}) px lies outside its camera's {} x {} "
+            "pixels (camera {}): the features come from photos of another size",
+            reader.path().string(), image.name, i, pixel.x(), pixel.y(), camera.width,
+            camera.height, camera.camera_id);
+      }
+    }
+    if (dimension >= 0 && data.features.Dimension() != dimension) {
+      ThrowInvalidArgument("{}, image '{}': descriptors of dimension {}, the images before have {}",
+                           reader.path().string(), image.name, data.features.Dimension(),
+                           dimension);
+    }
+    dimension = data.features.Dimension();
+    data.posed = UndistortKeypoints(camera, image.cam_from_world, data.features.keypoints);
+    images.emplace(image_id, std::move(data));
+    progress.Advance();
+  }
+  return images;
+}
+
+struct PairMatches {
+  std::vector<FeatureMatch> matches;
+  VerifiedMatches verified;
+};
+
+std::vector<PairMatches> MatchPairs(const std::vector<ImagePair>& pairs,
+                                    const std::map<image_t, ImageData>& images,
+                                    const MapTriangulationOptions& options) {
+  std::vector<PairMatches> results(pairs.size());
+  ProgressBar progress("matching pairs", pairs.size(), Display(options.show_progress));
+  ParallelFor(pairs.size(), options.num_threads, [&](size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      const ImageData& image1 = images.at(pairs[i].image_id1);
+      const ImageData& image2 = images.at(pairs[i].image_id2);
+      results[i].matches = MatchDescriptors(image1.features.descriptors,
+                                            image2.features.descriptors, options.matching);
+      results[i].verified = VerifyWithKnownPoses(image1.posed, image2.posed, results[i].matches,
+                                                 options.verification);
+      progress.Advance();
+    }
+  });
+  return results;
+}
+
+void WriteDatabase(const fs::path& path, const Reconstruction& model,
+                   const std::map<image_t, ImageData>& images, const std::vector<ImagePair>& pairs,
+                   const std::vector<PairMatches>& matches) {
+  ColmapDatabaseWriter writer(path);
+  for (const auto& [camera_id, camera] : model.cameras) writer.WriteCamera(camera);
+  for (const auto& [image_id, image] : model.images) {
+    writer.WriteImage(image_id, image.name, image.camera_id);
+    writer.WriteKeypoints(image_id, images.at(image_id).features.keypoints);
+  }
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    const ImagePair& pair = pairs[i];
+    writer.WriteMatches(pair.image_id1, pair.image_id2, matches[i].matches);
+    if (!matches[i].verified.accepted) continue;
+    const Rigid3d cam2_from_cam1 = images.at(pair.image_id2).posed.cam_from_world *
+                                   images.at(pair.image_id1).posed.cam_from_world.Inverse();
+    writer.WriteTwoViewGeometry(pair.image_id1, pair.image_id2, matches[i].verified.inliers,
+                                cam2_from_cam1);
+  }
+  writer.Close();
+}
+
+// The model's cameras and poses without 2D or 3D points: COLMAP then takes each image's database
+// keypoints as its 2D points.
+Reconstruction PosesOnly(const Reconstruction& model) {
+  Reconstruction poses;
+  poses.cameras = model.cameras;
+  poses.images = model.images;
+  for (auto& [image_id, image] : poses.images) image.points2D.clear();
+  return poses;
+}
+
+// The triangulated model must index the features' keypoints, or build-map could not join them.
+void CheckIndexesKeypoints(const Reconstruction& triangulated,
+                           const std::map<image_t, ImageData>& images, const fs::path& out_dir) {
+  for (const auto& [image_id, image] : triangulated.images) {
+    const auto it = images.find(image_id);
+    if (it == images.end() ||
+        static_cast<int64_t>(image.points2D.size()) != it->second.features.NumKeypoints()) {
+      ThrowInvalidArgument(
+          "COLMAP's model in {}: image '{}' (id {}) has {} 2D points for {} keypoints",
+          out_dir.string(), image.name, image_id, image.points2D.size(),
+          it == images.end() ? 0 : it->second.features.NumKeypoints());
+    }
+  }
+}
+
+}  // namespace
+
+void MapTriangulationOptions::Check() const {
+  pairs.Check();
+  matching.Check();
+  verification.Check();
+  colmap.Check();
+}
+
+MapTriangulationSummary TriangulateMap(const MapTriangulationInputs& inputs,
+                                       const MapTriangulationOptions& options,
+                                       const fs::path& out_dir) {
+  options.Check();
+  FindColmap(options.colmap);
+  const Timer total;
+  MapTriangulationSummary summary;
+  const Reconstruction model = ReadColmapModel(inputs.model_dir);
+  summary.num_images = static_cast<int64_t>(model.images.size());
+  const std::unique_ptr<FeatureReader> reader = OpenFeatureReader(inputs.features);
+
+  const std::vector<ImagePair> pairs = SelectCovisiblePairs(model, options.pairs);
+  if (pairs.empty()) {
+    ThrowInvalidArgument(
+        "the model in {} has no two images that share a 3D point: no pair to "
+        "match",
+        inputs.model_dir.string());
+  }
+  const std::map<image_t, ImageData> images =
+      ReadImageFeatures(model, *reader, options.show_progress);
+  const std::vector<PairMatches> matches = MatchPairs(pairs, images, options);
+  summary.num_pairs = static_cast<int64_t>(pairs.size());
+  for (const PairMatches& pair : matches) {
+    summary.num_matches += static_cast<int64_t>(pair.matches.size());
+    if (!pair.verified.accepted) continue;
+    ++summary.num_verified_pairs;
+    summary.num_verified_matches += static_cast<int64_t>(pair.verified.inliers.size());
+  }
+  summary.seconds_matching = total.ElapsedSeconds();
+  spdlog::info("{} pairs: {} matches, {} pairs verified with {} inlier matches", summary.num_pairs,
+               summary.num_matches, summary.num_verified_pairs, summary.num_verified_matches);
+
+  fs::create_directories(out_dir / MapTriangulationFiles::kWorkDir);
+  for (const char* stale :
+       {"cameras.bin", "images.bin", "points3D.bin", MapTriangulationFiles::kDatabase}) {
+    fs::remove(out_dir / stale);
+  }
+  const fs::path database = out_dir / MapTriangulationFiles::kDatabase;
+  WriteDatabase(database, model, images, pairs, matches);
+  const fs::path input_model = out_dir / MapTriangulationFiles::kInputModel;
+  WriteColmapModel(PosesOnly(model), input_model, ColmapFormat::kBinary);
+
+  // COLMAP requires an image folder; without photos, an empty one leaves the points grey.
+  fs::path image_dir = inputs.image_dir;
+  if (image_dir.empty()) {
+    image_dir = out_dir / MapTriangulationFiles::kNoImages;
+    fs::create_directories(image_dir);
+  }
+  const Timer colmap;
+  RunColmapPointTriangulator(
+      {database, image_dir, input_model, out_dir, out_dir / MapTriangulationFiles::kColmapLog},
+      options.colmap);
+  summary.seconds_triangulation = colmap.ElapsedSeconds();
+
+  const Reconstruction triangulated = ReadColmapModel(out_dir);
+  CheckIndexesKeypoints(triangulated, images, out_dir);
+  summary.num_registered_images = static_cast<int64_t>(triangulated.images.size());
+  summary.num_points3D = static_cast<int64_t>(triangulated.points3D.size());
+  summary.num_observations = static_cast<int64_t>(triangulated.NumObservations());
+  if (summary.num_points3D > 0) {
+    summary.mean_track_length = double(summary.num_observations) / summary.num_points3D;
+    double error_sum = 0;
+    for (const auto& [point3D_id, point] : triangulated.points3D) error_sum += point.error;
+    summary.mean_reprojection_error_px = error_sum / summary.num_points3D;
+  }
+  summary.seconds_total = total.ElapsedSeconds();
+  return summary;
+}
+
+}  // namespace hscloc

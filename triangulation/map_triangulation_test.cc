@@ -1,0 +1,96 @@
+#include "triangulation/map_triangulation.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "scene/colmap_io.h"
+#include "scene/feature_io.h"
+#include "util/testing.h"
+
+namespace hscloc {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+
+MapTriangulationOptions QuietOptions(const std::string& colmap) {
+  MapTriangulationOptions options;
+  options.colmap.colmap_executable = colmap;
+  options.show_progress = false;
+  return options;
+}
+
+// Fountain's map again from its own SIFT features (database.db) and poses: the triangulated model
+// keeps the poses, indexes the database's keypoints (the join build-map makes accepts it) and
+// holds about as many points as the shipped map, which COLMAP triangulated from exhaustive
+// matches.
+TEST(MapTriangulation, FountainFromItsOwnFeaturesAndPoses) {
+  HSCLOC_REQUIRE_REAL_DATA(data, "fountain-P11");
+  HSCLOC_REQUIRE_COLMAP(colmap);
+  testing::TempDir temp;
+  const MapTriangulationSummary summary = TriangulateMap(
+      {data / "map", data / "database.db", data / "images"}, QuietOptions(colmap), temp / "model");
+  const Reconstruction shipped = ReadColmapModel(data / "map");
+  const Reconstruction triangulated = ReadColmapModel(temp / "model");
+  EXPECT_EQ(summary.num_images, 9);
+  EXPECT_EQ(summary.num_pairs, 36);  // every pair of 9 images shares points
+  EXPECT_GE(summary.num_verified_pairs, 30);
+  EXPECT_EQ(summary.num_registered_images, 9);
+  EXPECT_EQ(summary.num_points3D, static_cast<int64_t>(triangulated.points3D.size()));
+  EXPECT_GT(summary.num_points3D, static_cast<int64_t>(0.8 * shipped.points3D.size()));
+  EXPECT_GT(summary.mean_track_length, 2.5);
+  EXPECT_LT(summary.mean_reprojection_error_px, 1.5);
+  for (const auto& [image_id, image] : shipped.images) {
+    SCOPED_TRACE(image.name);
+    const Image& ours = triangulated.images.at(image_id);
+    EXPECT_EQ(ours.name, image.name);
+    EXPECT_LT(PositionError(ours.cam_from_world, image.cam_from_world), 1e-9);
+  }
+  const auto features = OpenFeatureReader(data / "database.db");
+  EXPECT_EQ(JoinObservations(triangulated, *features).size(), triangulated.NumObservations());
+  EXPECT_TRUE(fs::exists(temp / "model" / MapTriangulationFiles::kColmapLog));
+  EXPECT_TRUE(fs::exists(temp / "model" / MapTriangulationFiles::kDatabase));
+}
+
+TEST(MapTriangulation, BadInputsAreNamed) {
+  HSCLOC_REQUIRE_REAL_DATA(data, "fountain-P11");
+  testing::TempDir temp;
+  const MapTriangulationOptions options = QuietOptions("sh");  // never reached
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
+                TriangulateMap({temp / "nowhere", data / "database.db", {}}, options, temp / "a");
+              }),
+              HasSubstr("nowhere"));
+
+  // Features of two of the nine images; then all nine at twice their size.
+  const auto database = OpenFeatureReader(data / "database.db");
+  const Reconstruction model = ReadColmapModel(data / "map");
+  {
+    H5FeatureWriter partial(temp / "partial.h5", H5FloatPrecision::kFloat32);
+    H5FeatureWriter doubled(temp / "doubled.h5", H5FloatPrecision::kFloat32);
+    int written = 0;
+    for (const auto& [image_id, image] : model.images) {
+      ImageFeatures features = database->Read(image.name);
+      if (written++ < 2) partial.Write(image.name, features, 1536, 1024);
+      features.keypoints *= 2;
+      doubled.Write(image.name, features, 3072, 2048);
+    }
+    partial.Close();
+    doubled.Close();
+  }
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
+                TriangulateMap({data / "map", temp / "partial.h5", {}}, options, temp / "b");
+              }),
+              HasSubstr("partial.h5 has no features for 7 of the model's 9 images"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
+                TriangulateMap({data / "map", temp / "doubled.h5", {}}, options, temp / "c");
+              }),
+              HasSubstr("the features come from photos of another size"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
+                TriangulateMap({data / "map", data / "database.db", {}},
+                               QuietOptions("/nowhere/colmap"), temp / "d");
+              }),
+              HasSubstr("'/nowhere/colmap' was not found"));
+}
+
+}  // namespace
+}  // namespace hscloc
