@@ -22,7 +22,10 @@ namespace hscloc {
 namespace {
 
 constexpr uint32_t kMagic = 0x54435348;  // "HSCT"
-constexpr uint32_t kVersion = 1;
+// Version 2 stores the labels only (the nodes follow from them); version 1 also stored the node
+// arrays and centres, 13 times the bytes on an Aachen-sized map (docs/decisions.md).
+constexpr uint32_t kVersion = 2;
+constexpr uint32_t kFirstReadableVersion = 1;
 constexpr int kMaxLevels = 255;  // node levels are stored as bytes
 constexpr int kMaxBranching = 256;
 // k-means trains on at most this many points per cluster (FAISS's default of 256 suits
@@ -317,7 +320,7 @@ LabelTree LabelTree::Build(const std::vector<Eigen::Vector3d>& points,
     Labeler(points, options, tree.labels_, progress)
         .LabelNode(std::move(all), 0, /*node_key=*/1, ResolveNumThreads(options.num_threads));
   }
-  tree.BuildNodesFromLabels(points);
+  tree.BuildNodesFromLabels();
   tree.FindLevelsWithChoice();
   return tree;
 }
@@ -329,23 +332,39 @@ void LabelTree::FindLevelsWithChoice() {
   }
 }
 
-void LabelTree::BuildNodesFromLabels(const std::vector<Eigen::Vector3d>& points) {
+std::vector<uint32_t> LabelTree::PointsInPathOrder() const {
   const size_t n = NumPoints();
-  const auto label = [&](uint32_t point, int level) {
-    return labels_[static_cast<size_t>(point) * levels_ + level];
-  };
-  // Points sorted by label path (least-significant-digit radix sort, stable): the points of a
-  // node at any level are then one contiguous range, and its children consecutive sub-ranges.
+  // Least-significant-digit radix sort, stable: the points of a node at any level are then one
+  // contiguous range, and its children consecutive sub-ranges.
   std::vector<uint32_t> order(n);
   std::iota(order.begin(), order.end(), 0u);
   std::vector<uint32_t> sorted(n);
   for (int level = levels_ - 1; level >= 0; --level) {
     std::array<size_t, kMaxBranching + 1> start{};
-    for (const uint32_t point : order) ++start[label(point, level) + 1];
+    for (const uint32_t point : order) ++start[labels_[size_t{point} * levels_ + level] + 1];
     std::partial_sum(start.begin(), start.end(), start.begin());
-    for (const uint32_t point : order) sorted[start[label(point, level)]++] = point;
+    for (const uint32_t point : order) {
+      sorted[start[labels_[size_t{point} * levels_ + level]]++] = point;
+    }
     order.swap(sorted);
   }
+  return order;
+}
+
+void LabelTree::BuildNodesFromLabels() {
+  const size_t n = NumPoints();
+  const auto label = [&](uint32_t point, int level) {
+    return labels_[static_cast<size_t>(point) * levels_ + level];
+  };
+  for (uint32_t point = 0; point < n; ++point) {
+    for (int level = 0; level < levels_; ++level) {
+      if (label(point, level) >= branching_) {
+        ThrowInvalidArgument("the labels of point {} hold {} at level {}, beyond branching {}",
+                             point, label(point, level), level, branching_);
+      }
+    }
+  }
+  const std::vector<uint32_t> order = PointsInPathOrder();
 
   struct Range {
     size_t begin;
@@ -355,14 +374,11 @@ void LabelTree::BuildNodesFromLabels(const std::vector<Eigen::Vector3d>& points)
     node_level_.push_back(static_cast<uint8_t>(level));
     first_child_.push_back(0);
     num_children_.push_back(0);
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    for (size_t i = range.begin; i < range.end; ++i) sum += points[order[i]];
-    const size_t count = range.end - range.begin;
-    centers_.push_back(count == 0
-                           ? Eigen::Vector3f::Zero()
-                           : Eigen::Vector3f((sum / static_cast<double>(count)).cast<float>()));
     if (level == levels_) {
-      THROW_CHECK_EQ(count, size_t{1});
+      if (range.end - range.begin != 1) {
+        ThrowInvalidArgument("the labels of points {} and {} lead to the same leaf",
+                             order[range.begin], order[range.begin + 1]);
+      }
       leaf_point_.push_back(order[range.begin]);
     } else {
       leaf_point_.push_back(-1);
@@ -373,7 +389,6 @@ void LabelTree::BuildNodesFromLabels(const std::vector<Eigen::Vector3d>& points)
   first_child_.clear();
   num_children_.clear();
   leaf_point_.clear();
-  centers_.clear();
   std::vector<Range> current = {{0, n}};
   add_node(0, current.front());
   size_t current_first_node = 0;
@@ -385,7 +400,13 @@ void LabelTree::BuildNodesFromLabels(const std::vector<Eigen::Vector3d>& points)
       first_child_[node] = static_cast<uint32_t>(next_first_node + next.size());
       for (size_t begin = current[i].begin; begin < current[i].end;) {
         const uint8_t child_label = label(order[begin], level);
-        THROW_CHECK_EQ(size_t{child_label}, size_t{num_children_[node]});  // labels are dense
+        // Children are labelled 0 .. num_children - 1 without gaps.
+        if (child_label != num_children_[node]) {
+          ThrowInvalidArgument(
+              "the labels of point {} skip a child: label {} at level {} where the parent has {} "
+              "children before it",
+              order[begin], child_label, level, num_children_[node]);
+        }
         size_t end = begin + 1;
         while (end < current[i].end && label(order[end], level) == child_label) ++end;
         next.push_back({begin, end});
@@ -398,6 +419,24 @@ void LabelTree::BuildNodesFromLabels(const std::vector<Eigen::Vector3d>& points)
     current_first_node = next_first_node;
     current.swap(next);
   }
+}
+
+std::vector<Eigen::Vector3d> LabelTree::NodeCenters(
+    const std::vector<Eigen::Vector3d>& points) const {
+  THROW_CHECK_EQ(points.size(), NumPoints());
+  std::vector<Eigen::Vector3d> sums(NumNodes(), Eigen::Vector3d::Zero());
+  std::vector<size_t> counts(NumNodes(), 0);
+  for (uint32_t point = 0; point < points.size(); ++point) {
+    for (int depth = 0; depth <= levels_; ++depth) {
+      const auto node = static_cast<size_t>(NodeOfLabels(LabelsOfPoint(point), depth));
+      sums[node] += points[point];
+      ++counts[node];
+    }
+  }
+  for (size_t node = 0; node < sums.size(); ++node) {
+    if (counts[node] > 0) sums[node] /= static_cast<double>(counts[node]);
+  }
+  return sums;
 }
 
 int64_t LabelTree::NodeOfLabels(const Label* labels, int depth) const {
@@ -428,12 +467,6 @@ void LabelTree::Write(std::ostream& stream) const {
   WriteBinary<uint32_t>(stream, branching_);
   WriteBinary<uint64_t>(stream, NumPoints());
   WriteBinaryArray(stream, labels_.data(), labels_.size());
-  WriteBinary<uint64_t>(stream, NumNodes());
-  WriteBinaryArray(stream, node_level_.data(), node_level_.size());
-  WriteBinaryArray(stream, first_child_.data(), first_child_.size());
-  WriteBinaryArray(stream, num_children_.data(), num_children_.size());
-  WriteBinaryArray(stream, leaf_point_.data(), leaf_point_.size());
-  for (const Eigen::Vector3f& center : centers_) WriteBinaryArray(stream, center.data(), 3);
 }
 
 LabelTree LabelTree::Read(std::istream& stream, const std::string& source) {
@@ -441,9 +474,9 @@ LabelTree LabelTree::Read(std::istream& stream, const std::string& source) {
     ThrowInvalidArgument("{}: not an hscloc label tree (wrong magic)", source);
   }
   const auto version = ReadBinary<uint32_t>(stream, source + ": version");
-  if (version != kVersion) {
-    ThrowInvalidArgument("{}: label tree version {} (this build reads version {})", source, version,
-                         kVersion);
+  if (version < kFirstReadableVersion || version > kVersion) {
+    ThrowInvalidArgument("{}: label tree version {} (this build reads versions {} to {})", source,
+                         version, kFirstReadableVersion, kVersion);
   }
   LabelTree tree;
   const auto levels = ReadBinary<uint32_t>(stream, source + ": levels");
@@ -461,56 +494,21 @@ LabelTree LabelTree::Read(std::istream& stream, const std::string& source) {
                          levels, branching);
   }
   tree.labels_ = ReadBinaryVector<Label>(stream, num_points * levels, source + ": labels");
-  const auto num_nodes = ReadBinary<uint64_t>(stream, source + ": node count");
-  // Every node but the root lies on the path of at least one point.
-  if (num_nodes < 1 || num_nodes > 1 + num_points * levels) {
-    ThrowInvalidArgument("{}: {} nodes for {} points and {} levels", source, num_nodes, num_points,
-                         levels);
-  }
-  tree.node_level_ = ReadBinaryVector<uint8_t>(stream, num_nodes, source + ": node levels");
-  tree.first_child_ = ReadBinaryVector<uint32_t>(stream, num_nodes, source + ": first children");
-  tree.num_children_ = ReadBinaryVector<uint32_t>(stream, num_nodes, source + ": child counts");
-  tree.leaf_point_ = ReadBinaryVector<int64_t>(stream, num_nodes, source + ": leaf points");
-  const std::vector<float> centers =
-      ReadBinaryVector<float>(stream, 3 * num_nodes, source + ": centres");
-  tree.centers_.resize(num_nodes);
-  for (size_t node = 0; node < num_nodes; ++node) {
-    tree.centers_[node] =
-        Eigen::Vector3f(centers[3 * node], centers[3 * node + 1], centers[3 * node + 2]);
-  }
-
-  // The arrays must form one tree rooted at node 0 whose leaves are exactly the points' paths.
-  if (tree.node_level_[0] != 0) ThrowInvalidArgument("{}: the root is not on level 0", source);
-  std::vector<uint8_t> has_parent(num_nodes, 0);
-  for (size_t node = 0; node < num_nodes; ++node) {
-    const int level = tree.node_level_[node];
-    const bool leaf = level == tree.levels_;
-    if (level > tree.levels_ || tree.num_children_[node] > branching ||
-        (leaf && tree.num_children_[node] != 0) || (leaf != (tree.leaf_point_[node] >= 0)) ||
-        tree.leaf_point_[node] >= static_cast<int64_t>(num_points) || tree.leaf_point_[node] < -1 ||
-        uint64_t{tree.first_child_[node]} + tree.num_children_[node] > num_nodes) {
-      ThrowInvalidArgument("{}: node {} is inconsistent", source, node);
+  if (version == 1) {
+    // Version 1 stored the node arrays and centres after the labels; the labels alone define
+    // the tree, so they are skipped (their presence is still required: a cut file is named).
+    const auto num_nodes = ReadBinary<uint64_t>(stream, source + ": node count");
+    if (num_nodes < 1 || num_nodes > 1 + num_points * levels) {
+      ThrowInvalidArgument("{}: {} nodes for {} points and {} levels", source, num_nodes,
+                           num_points, levels);
     }
-    for (uint32_t c = 0; c < tree.num_children_[node]; ++c) {
-      const uint32_t child = tree.first_child_[node] + c;
-      if (child == 0 || has_parent[child] || tree.node_level_[child] != level + 1) {
-        ThrowInvalidArgument("{}: node {} has an inconsistent child {}", source, node, child);
-      }
-      has_parent[child] = 1;
-    }
+    constexpr size_t kVersion1BytesPerNode = 1 + 4 + 4 + 8 + 3 * 4;
+    ReadBinaryVector<uint8_t>(stream, kVersion1BytesPerNode * num_nodes, source + ": node arrays");
   }
-  size_t num_leaves = 0;
-  for (size_t node = 1; node < num_nodes; ++node) {
-    if (!has_parent[node]) ThrowInvalidArgument("{}: node {} has no parent", source, node);
-    num_leaves += tree.leaf_point_[node] >= 0;
-  }
-  if (num_leaves != num_points) {
-    ThrowInvalidArgument("{}: {} leaves for {} points", source, num_leaves, num_points);
-  }
-  for (uint32_t point = 0; point < num_points; ++point) {
-    if (tree.PointOfLabels(tree.LabelsOfPoint(point)) != point) {
-      ThrowInvalidArgument("{}: the labels of point {} do not lead to its leaf", source, point);
-    }
+  try {
+    tree.BuildNodesFromLabels();
+  } catch (const std::invalid_argument& error) {
+    ThrowInvalidArgument("{}: {}", source, error.what());
   }
   tree.FindLevelsWithChoice();
   return tree;
@@ -519,8 +517,7 @@ LabelTree LabelTree::Read(std::istream& stream, const std::string& source) {
 bool LabelTree::operator==(const LabelTree& other) const {
   return levels_ == other.levels_ && branching_ == other.branching_ && labels_ == other.labels_ &&
          node_level_ == other.node_level_ && first_child_ == other.first_child_ &&
-         num_children_ == other.num_children_ && leaf_point_ == other.leaf_point_ &&
-         centers_ == other.centers_;
+         num_children_ == other.num_children_ && leaf_point_ == other.leaf_point_;
 }
 
 }  // namespace hscloc

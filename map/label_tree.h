@@ -65,12 +65,14 @@ class LabelTree {
   // more than one child there. Where none does, every label of that level is 0 and a classifier
   // has nothing to decide (the last level of a map with fewer than branching^(levels-1) points).
   bool LevelHasChoice(int level) const { return level_has_choice_.at(level) != 0; }
-  // Cluster centre of a node (mean of its points), for the regression variant.
-  const Eigen::Vector3f& Center(uint32_t node) const { return centers_[node]; }
+  // The cluster centre of every node (the mean of the points below it; zero for a childless
+  // root), given the points the tree was built over (dense point index -> position).
+  std::vector<Eigen::Vector3d> NodeCenters(const std::vector<Eigen::Vector3d>& points) const;
   // The node a label prefix leads to (`depth` labels, 0 .. levels; other depths throw), or -1.
   int64_t NodeOfLabels(const Label* labels, int depth) const;
 
-  // Little-endian: magic "HSCT", version, shape, labels, then the node arrays.
+  // Little-endian: magic "HSCT", version, shape, then the labels; the nodes are derived from the
+  // labels when read.
   void Write(std::ostream& stream) const;
   // Throws std::invalid_argument naming `source` when the data is truncated or inconsistent.
   static LabelTree Read(std::istream& stream, const std::string& source);
@@ -84,12 +86,15 @@ class LabelTree {
   std::vector<uint8_t> node_level_;
   std::vector<uint32_t> first_child_;
   std::vector<uint32_t> num_children_;
-  std::vector<int64_t> leaf_point_;  // per node; -1 for inner nodes
-  std::vector<Eigen::Vector3f> centers_;
+  std::vector<int64_t> leaf_point_;        // per node; -1 for inner nodes
   std::vector<uint8_t> level_has_choice_;  // per level, derived from labels_
 
-  // Derives the nodes (breadth-first, children in label order) and their centres from labels_.
-  void BuildNodesFromLabels(const std::vector<Eigen::Vector3d>& points);
+  // Derives the nodes (breadth-first, children in label order) from labels_. Throws
+  // std::invalid_argument when the labels are not a tree's: a label beyond the branching, a
+  // child label with a gap before it, two points on one leaf.
+  void BuildNodesFromLabels();
+  // Point indices sorted by label path.
+  std::vector<uint32_t> PointsInPathOrder() const;
   // Derives level_has_choice_ from labels_: labels are dense, so a level offers a choice exactly
   // where some point's label there is not 0.
   void FindLevelsWithChoice();

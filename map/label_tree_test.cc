@@ -52,7 +52,6 @@ void ExpectValidTree(const LabelTree& tree, const std::vector<Eigen::Vector3d>& 
 
   // Every point's path is valid and ends in a leaf holding that point; leaves are points.
   std::vector<int> points_at_leaf(tree.NumNodes(), 0);
-  std::vector<Eigen::Vector3d> sum(tree.NumNodes(), Eigen::Vector3d::Zero());
   std::vector<size_t> count(tree.NumNodes(), 0);
   for (uint32_t p = 0; p < points.size(); ++p) {
     const LabelTree::Label* labels = tree.LabelsOfPoint(p);
@@ -64,7 +63,6 @@ void ExpectValidTree(const LabelTree& tree, const std::vector<Eigen::Vector3d>& 
       const int64_t node = tree.NodeOfLabels(labels, depth);
       ASSERT_GE(node, 0);
       ASSERT_EQ(tree.NodeLevel(node), depth);
-      sum[node] += points[p];
       ++count[node];
     }
     const int64_t leaf = tree.NodeOfLabels(labels, tree.levels());
@@ -88,13 +86,9 @@ void ExpectValidTree(const LabelTree& tree, const std::vector<Eigen::Vector3d>& 
         EXPECT_GE(tree.NumChildren(node), 1u) << "empty inner node " << node;
       }
     }
-    // Every node is on some point's path, and its centre is the mean of the points below it.
+    // Every node is on some point's path.
     if (node > 0 || !points.empty()) {
       ASSERT_GT(count[node], 0u) << "node " << node;
-    }
-    if (count[node] > 0) {
-      const Eigen::Vector3d mean = sum[node] / static_cast<double>(count[node]);
-      EXPECT_LT((tree.Center(node).cast<double>() - mean).norm(), 1e-3) << "node " << node;
     }
   }
   EXPECT_EQ(num_leaves, points.size());
@@ -179,12 +173,13 @@ TEST(LabelTree, SmallCityTreeIsValidAndSpatiallyCompact) {
   double spread = 0;
   for (const Eigen::Vector3d& point : points) spread += (point - city_mean).norm();
   spread /= static_cast<double>(points.size());
+  const std::vector<Eigen::Vector3d> centers = tree.NodeCenters(points);
   std::vector<double> mean_distance(tree.levels() + 1, 0.0);
   std::vector<size_t> points_per_level1(tree.NumNodes(), 0);
   for (uint32_t p = 0; p < points.size(); ++p) {
     for (int depth = 1; depth <= tree.levels(); ++depth) {
       const int64_t node = tree.NodeOfLabels(tree.LabelsOfPoint(p), depth);
-      mean_distance[depth] += (points[p] - tree.Center(node).cast<double>()).norm();
+      mean_distance[depth] += (points[p] - centers[node]).norm();
       if (depth == 1) ++points_per_level1[node];
     }
   }
@@ -377,15 +372,76 @@ TEST(LabelTree, TruncatedOrCorruptDataThrowsNamingTheSource) {
       testing::InvalidArgumentMessage([&] { LabelTree::Read(bad_magic_stream, "tree.bin"); }),
       HasSubstr("tree.bin: not an hscloc label tree"));
 
-  // A child count that points past the node array.
-  const size_t num_nodes = tree.NumNodes();
-  const size_t num_children_offset = kFirstLabel + 3 * 500 + 8 + num_nodes + 4 * num_nodes;
-  std::string bad_count = bytes;
-  bad_count[num_children_offset] = static_cast<char>(255);
-  std::istringstream bad_count_stream(bad_count);
+  // Two points on one leaf: a point whose last label is its parent's last child takes label 0.
+  std::string same_leaf = bytes;
+  for (uint32_t p = 0; p < 500; ++p) {
+    const LabelTree::Label* labels = tree.LabelsOfPoint(p);
+    const int64_t parent = tree.NodeOfLabels(labels, 2);
+    if (tree.NumChildren(parent) > 1 && labels[2] == tree.NumChildren(parent) - 1) {
+      same_leaf[kFirstLabel + 3 * p + 2] = 0;
+      break;
+    }
+  }
+  std::istringstream same_leaf_stream(same_leaf);
   EXPECT_THAT(
-      testing::InvalidArgumentMessage([&] { LabelTree::Read(bad_count_stream, "tree.bin"); }),
-      HasSubstr("tree.bin: node 0"));
+      testing::InvalidArgumentMessage([&] { LabelTree::Read(same_leaf_stream, "tree.bin"); }),
+      HasSubstr("lead to the same leaf"));
+
+  // A root child label with a gap before it: every point's first label becomes 1.
+  std::string gap = bytes;
+  for (size_t point = 0; point < 500; ++point) gap[kFirstLabel + 3 * point] = 1;
+  std::istringstream gap_stream(gap);
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { LabelTree::Read(gap_stream, "tree.bin"); }),
+              HasSubstr("tree.bin: the labels of point"));
+}
+
+// The root's centre is the mean of all points, a leaf's is its point, and an inner node's is the
+// mean of its children's centres weighted by their point counts.
+TEST(LabelTree, NodeCentersAreTheMeansOfTheirPoints) {
+  const std::vector<Eigen::Vector3d> points = RandomPoints(500, 3);
+  const LabelTree tree = LabelTree::Build(points, QuietOptions(3, 8, 3));
+  const std::vector<Eigen::Vector3d> centers = tree.NodeCenters(points);
+  ASSERT_EQ(centers.size(), tree.NumNodes());
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& point : points) mean += point;
+  EXPECT_LT((centers[0] - mean / 500.0).norm(), 1e-9);
+
+  std::vector<size_t> count(tree.NumNodes(), 0);
+  for (uint32_t node = static_cast<uint32_t>(tree.NumNodes()); node-- > 0;) {
+    if (tree.NodeLevel(node) == tree.levels()) {
+      EXPECT_EQ(centers[node], points[tree.PointOfLeaf(node)]);
+      count[node] = 1;
+      continue;
+    }
+    Eigen::Vector3d weighted = Eigen::Vector3d::Zero();
+    for (uint32_t c = 0; c < tree.NumChildren(node); ++c) {
+      const uint32_t child = tree.FirstChild(node) + c;
+      weighted += static_cast<double>(count[child]) * centers[child];
+      count[node] += count[child];
+    }
+    EXPECT_LT((centers[node] - weighted / static_cast<double>(count[node])).norm(), 1e-9)
+        << "node " << node;
+  }
+  EXPECT_EQ(count[0], points.size());
+}
+
+// Version 1 files (labels, then node arrays and centres) still read, to the same tree.
+TEST(LabelTree, ReadsVersionOneFiles) {
+  const LabelTree tree = LabelTree::Build(RandomPoints(800, 5), QuietOptions(3, 10, 5));
+  std::stringstream stream;
+  tree.Write(stream);
+  std::string bytes = stream.str();
+  bytes[4] = 1;  // the version, after the magic
+  constexpr size_t kVersion1BytesPerNode = 1 + 4 + 4 + 8 + 3 * 4;
+  const uint64_t num_nodes = tree.NumNodes();
+  bytes.append(reinterpret_cast<const char*>(&num_nodes), sizeof(num_nodes));
+  bytes.append(kVersion1BytesPerNode * num_nodes, '\0');
+  std::istringstream version1(bytes);
+  EXPECT_TRUE(LabelTree::Read(version1, "v1.bin") == tree);
+
+  std::istringstream cut(bytes.substr(0, bytes.size() - 1));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { LabelTree::Read(cut, "v1.bin"); }),
+              HasSubstr("v1.bin: node arrays"));
 }
 
 // An Aachen-sized tree (1.5 M points, the default 4 levels and branching 100), for measuring the
@@ -402,12 +458,13 @@ TEST(LabelTree, DISABLED_AachenScaleBuild) {
             << std::chrono::duration<double>(build_start - generate_start).count()
             << " s): tree of " << tree.NumNodes() << " nodes built in "
             << std::chrono::duration<double>(end - build_start).count() << " s\n";
+  const std::vector<Eigen::Vector3d> centers = tree.NodeCenters(points);
   std::vector<double> mean_distance(tree.levels() + 1, 0.0);
   for (uint32_t p = 0; p < points.size(); ++p) {
     ASSERT_EQ(tree.PointOfLabels(tree.LabelsOfPoint(p)), p);
     for (int depth = 1; depth < tree.levels(); ++depth) {
       const int64_t node = tree.NodeOfLabels(tree.LabelsOfPoint(p), depth);
-      mean_distance[depth] += (points[p] - tree.Center(node).cast<double>()).norm();
+      mean_distance[depth] += (points[p] - centers[node]).norm();
     }
   }
   for (int depth = 1; depth < tree.levels(); ++depth) {
