@@ -1,5 +1,7 @@
 // The network's archive: shape, options and weights in a libtorch archive, with a format magic
 // and version so that another file or an older format is named, not misread.
+#include <fmt/ranges.h>
+
 #include <istream>
 #include <ostream>
 #include <sstream>
@@ -18,8 +20,11 @@ namespace {
 constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
 // Version 2 added the trunk's hidden width; version 1 archives have it equal to the channels.
 // Version 3 added node conditioning, node output rows and the tree's node counts; older archives
-// are the paper's configuration. Version 4 added pooled point rows and masked decoding.
-constexpr int64_t kFormatVersion = 4;
+// are the paper's configuration. Version 4 added pooled point rows and masked decoding. Version 5
+// stores the weights flat, by parameter name, with the map-sized tables at half precision when
+// saved for a bundle (docs/decisions.md).
+constexpr int64_t kFormatVersion = 5;
+constexpr int64_t kFirstFlatWeightsVersion = 5;
 
 void WriteInt64Vector(torch::serialize::OutputArchive& archive, const std::string& key,
                       const std::vector<int64_t>& values) {
@@ -40,9 +45,57 @@ std::vector<int64_t> ReadInt64Vector(torch::serialize::InputArchive& archive,
                               tensor.data_ptr<int64_t>() + tensor.numel());
 }
 
+// Every parameter and buffer by its dotted name, tables at `tables` precision. A table that half
+// precision cannot hold (a value beyond +-65504) stays at full precision.
+void WriteWeights(const HscNet& module, TablePrecision tables,
+                  torch::serialize::OutputArchive& weights) {
+  for (const auto& item : module->named_parameters()) {
+    const std::string& name = item.key();
+    torch::Tensor stored = item.value().detach().cpu();
+    if (tables == TablePrecision::kFloat16 && IsMapSizedTable(name)) {
+      torch::Tensor half = stored.to(torch::kHalf);
+      if (torch::isfinite(half).all().item<bool>()) stored = half;
+    }
+    weights.write(name, stored);
+  }
+  for (const auto& item : module->named_buffers()) {
+    weights.write(item.key(), item.value().detach().cpu(), /*is_buffer=*/true);
+  }
+}
+
+// Copies each stored weight into the freshly built module, converting half-precision tables back.
+void ReadWeights(torch::serialize::InputArchive& weights, const std::string& source,
+                 HscNet& module) {
+  torch::NoGradGuard no_grad;
+  const auto read_into = [&](const std::string& name, torch::Tensor& target, bool is_buffer) {
+    torch::Tensor stored;
+    if (!weights.try_read(name, stored, is_buffer)) {
+      ThrowInvalidArgument("{}: network weights lack '{}'", source, name);
+    }
+    if (stored.sizes() != target.sizes() || !stored.is_floating_point()) {
+      ThrowInvalidArgument("{}: network weight '{}' has shape {}, the network needs {}", source,
+                           name, fmt::join(stored.sizes(), "x"), fmt::join(target.sizes(), "x"));
+    }
+    target.copy_(stored);
+  };
+  for (auto& item : module->named_parameters()) read_into(item.key(), item.value(), false);
+  for (auto& item : module->named_buffers()) read_into(item.key(), item.value(), true);
+}
+
 }  // namespace
 
-void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputArchive& archive) {
+bool IsMapSizedTable(const std::string& parameter_name) {
+  const auto ends_with = [&](const std::string& suffix) {
+    return parameter_name.size() >= suffix.size() &&
+           parameter_name.compare(parameter_name.size() - suffix.size(), suffix.size(), suffix) ==
+               0;
+  };
+  return ends_with("image_embedding.weight") || ends_with("node_embedding.weight") ||
+         ends_with("node_rows") || ends_with("point_rows");
+}
+
+void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputArchive& archive,
+                              TablePrecision tables) {
   const NetworkShape& shape = network.shape();
   const NetworkOptions& options = network.options();
   WriteInt64Vector(archive, "format", {kFormatMagic, kFormatVersion});
@@ -55,7 +108,7 @@ void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputAr
        options.pooled_point_rows ? 1 : 0, options.masked_decoding ? 1 : 0});
   WriteInt64Vector(archive, "nodes_per_depth", shape.nodes_per_depth);
   torch::serialize::OutputArchive weights;
-  network.impl_->module->save(weights);
+  WriteWeights(network.impl_->module, tables, weights);
   archive.write("weights", weights);
 }
 
@@ -114,7 +167,11 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
     ThrowInvalidArgument("{}: network archive without weights", source);
   }
   try {
-    impl->module->load(weights);
+    if (format[1] >= kFirstFlatWeightsVersion) {
+      ReadWeights(weights, source, impl->module);
+    } else {
+      impl->module->load(weights);
+    }
   } catch (const c10::Error& error) {
     ThrowInvalidArgument("{}: network weights do not match shape and options: {}", source,
                          error.what_without_backtrace());
@@ -126,7 +183,7 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
 
 void Network::Save(std::ostream& stream) const {
   torch::serialize::OutputArchive archive;
-  NetworkInternals::SaveTo(*this, archive);
+  NetworkInternals::SaveTo(*this, archive, TablePrecision::kFloat16);
   archive.save_to(stream);
 }
 

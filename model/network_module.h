@@ -171,12 +171,20 @@ struct Network::Impl {
   ComputeDevice device = ComputeDevice::kCpu;
 };
 
+enum class TablePrecision { kFloat32, kFloat16 };
+// Whether a parameter (by its name in HscNet) is one of the tables with a row per image, tree node
+// or point: most of a large map's weights, and looked up rather than multiplied.
+bool IsMapSizedTable(const std::string& parameter_name);
+
 // The trainer's access to the modules behind a Network.
 struct NetworkInternals {
   static HscNet& Module(Network& network) { return network.impl_->module; }
   static const HscNet& Module(const Network& network) { return network.impl_->module; }
-  // Saves into / restores from an archive nested in a larger one (checkpoints).
-  static void SaveTo(const Network& network, torch::serialize::OutputArchive& archive);
+  // Saves into / restores from an archive nested in a larger one (checkpoints). kFloat16 stores
+  // the map-sized tables (image and node embeddings, node and point output rows) at half
+  // precision, for bundles; checkpoints keep every weight as trained.
+  static void SaveTo(const Network& network, torch::serialize::OutputArchive& archive,
+                     TablePrecision tables);
   static Network LoadFrom(torch::serialize::InputArchive& archive, const std::string& source,
                           ComputeDevice device);
   // Predict through libtorch operators (the CUDA path), whatever the device: the reference the

@@ -1,13 +1,18 @@
 // Fixtures shared by the network's tests: a small random map (points, a 3-level label tree of
-// branching 12, 9 images each seeing a random tenth of the points) and random descriptors.
+// branching 12, 9 images each seeing a random tenth of the points), random descriptors, and copies
+// of a network as its archives store it.
 #pragma once
 
+#include <torch/torch.h>
+
 #include <Eigen/Core>
+#include <sstream>
 #include <vector>
 
 #include "map/label_tree.h"
 #include "map/visibility.h"
 #include "model/network.h"
+#include "model/network_module.h"
 #include "util/random.h"
 
 namespace hscloc::testing_support {
@@ -81,6 +86,29 @@ inline DescriptorMatrix RandomDescriptors(int64_t rows, int64_t dim, uint64_t se
     descriptors.data()[i] = static_cast<float>(random.Normal());
   }
   return descriptors;
+}
+
+// A copy of the network through a full-precision archive (as checkpoints store it).
+inline Network CopyAtFullPrecision(const Network& network) {
+  torch::serialize::OutputArchive archive;
+  NetworkInternals::SaveTo(network, archive, TablePrecision::kFloat32);
+  std::stringstream stream;
+  archive.save_to(stream);
+  torch::serialize::InputArchive input;
+  input.load_from(stream);
+  return NetworkInternals::LoadFrom(input, "checkpoint", ComputeDevice::kCpu);
+}
+
+// The network with its map-sized tables rounded to half precision and back: what a bundle keeps.
+inline Network WithTablesRoundedToHalf(const Network& network) {
+  Network rounded = CopyAtFullPrecision(network);
+  torch::NoGradGuard no_grad;
+  for (auto& item : NetworkInternals::Module(rounded)->named_parameters()) {
+    if (IsMapSizedTable(item.key())) {
+      item.value().copy_(item.value().to(torch::kHalf).to(torch::kFloat));
+    }
+  }
+  return rounded;
 }
 
 }  // namespace hscloc::testing_support

@@ -69,7 +69,7 @@ void SaveCheckpoint(const std::filesystem::path& path, const Network& network,
   torch::serialize::OutputArchive archive;
   archive.write("checkpoint_version", torch::tensor({kCheckpointVersion}, torch::kInt64));
   torch::serialize::OutputArchive network_archive;
-  NetworkInternals::SaveTo(network, network_archive);
+  NetworkInternals::SaveTo(network, network_archive, TablePrecision::kFloat32);
   archive.write("network", network_archive);
   torch::serialize::OutputArchive optimizer_archive;
   optimizer.save(optimizer_archive);
