@@ -38,7 +38,9 @@ TEST(DescriptorMatching, FindsAPermutationOfNoisyDescriptors) {
       descriptors2.row(permutation[i]) =
           3.0f * (descriptors1.row(i).normalized() + 0.02f * noise.row(i));
     }
-    const std::vector<FeatureMatch> matches = MatchDescriptors(descriptors1, descriptors2);
+    // A strict ratio test keeps them: their second neighbours are far.
+    const std::vector<FeatureMatch> matches =
+        MatchDescriptors(descriptors1, descriptors2, {.max_ratio = 0.8});
     ASSERT_EQ(matches.size(), static_cast<size_t>(count));
     for (int64_t i = 0; i < count; ++i) {
       EXPECT_EQ(matches[i].point2D_idx1, i);
@@ -58,13 +60,15 @@ TEST(DescriptorMatching, RatioTestDropsAmbiguousMatches) {
   descriptors2.row(1) = base.row(0).normalized() + 0.01f * noise.row(1).normalized();
   descriptors2.row(2) = base.row(1);
   descriptors2.row(3) = base.row(2);
-  const std::vector<FeatureMatch> matches = MatchDescriptors(descriptors1, descriptors2);
-  EXPECT_EQ(matches, (std::vector<FeatureMatch>{{1, 2}, {2, 3}}));
-  // Without the ratio test the nearest copy is matched too.
-  EXPECT_EQ(MatchDescriptors(descriptors1, descriptors2, {.max_ratio = 1}).size(), 3u);
+  const DescriptorMatchingOptions ratio = {.max_ratio = 0.9};
+  EXPECT_EQ(MatchDescriptors(descriptors1, descriptors2, ratio),
+            (std::vector<FeatureMatch>{{1, 2}, {2, 3}}));
+  // Without the ratio test (the default) the nearest copy is matched too.
+  EXPECT_EQ(MatchDescriptors(descriptors1, descriptors2).size(), 3u);
   // Ambiguity seen from image 2's side: two near copies in image 1 of one descriptor of image 2.
   descriptors1.row(2) = descriptors2.row(0) + 0.01f * noise.row(2).normalized();
-  EXPECT_EQ(MatchDescriptors(descriptors1, descriptors2), (std::vector<FeatureMatch>{{1, 2}}));
+  EXPECT_EQ(MatchDescriptors(descriptors1, descriptors2, ratio),
+            (std::vector<FeatureMatch>{{1, 2}}));
 }
 
 TEST(DescriptorMatching, KeepsOnlyMutualNearestNeighbours) {
@@ -74,8 +78,7 @@ TEST(DescriptorMatching, KeepsOnlyMutualNearestNeighbours) {
   descriptors2 << 0.9, 0.44;
   // Both of image 1's descriptors are nearest to image 2's only one, which is nearest to the
   // second: one match, without a ratio test for the single descriptor.
-  EXPECT_EQ(MatchDescriptors(descriptors1, descriptors2, {.max_ratio = 1}),
-            (std::vector<FeatureMatch>{{1, 0}}));
+  EXPECT_EQ(MatchDescriptors(descriptors1, descriptors2), (std::vector<FeatureMatch>{{1, 0}}));
   EXPECT_TRUE(MatchDescriptors(DescriptorMatrix(0, 2), descriptors2).empty());
   EXPECT_THAT(testing::InvalidArgumentMessage(
                   [&] { MatchDescriptors(descriptors1, DescriptorMatrix(3, 4)); }),
