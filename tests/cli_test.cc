@@ -227,6 +227,28 @@ TEST(ExtractCliTest, WritesHlocFeaturesAndResumes) {
   EXPECT_THAT(ReadText(temp / "bad.log"), HasSubstr("nowhere does not exist"));
 }
 
+// Triangulation's bad inputs stop it before any matching, with the input named and exit status 2.
+TEST(TriangulateCliTest, BadInputsFailWithAClearMessage) {
+  HSCLOC_REQUIRE_REAL_DATA(fountain, "fountain-P11");
+  HSCLOC_REQUIRE_REAL_DATA(lund, "lund");
+  testing::TempDir temp;
+  const auto triangulate = [&](const fs::path& model, const fs::path& features,
+                               const std::string& extra, const fs::path& log) {
+    return Hscloc(fmt::format("triangulate --model {} --features {} --out {} {}", model.string(),
+                              features.string(), (temp / "out").string(), extra),
+                  log);
+  };
+  EXPECT_NE(triangulate(temp / "nowhere", fountain / "database.db", "", temp / "model.log"), 0);
+  EXPECT_THAT(ReadText(temp / "model.log"), HasSubstr("nowhere"));
+  EXPECT_EQ(triangulate(fountain / "map", lund / "database.db", "", temp / "features.log"), 2);
+  EXPECT_THAT(ReadText(temp / "features.log"),
+              HasSubstr("has no features for 9 of the model's 9 images: 0000.jpg, 0001.jpg"));
+  EXPECT_EQ(triangulate(fountain / "map", fountain / "database.db", "--colmap /nowhere/colmap",
+                        temp / "colmap.log"),
+            2);
+  EXPECT_THAT(ReadText(temp / "colmap.log"), HasSubstr("'/nowhere/colmap' was not found"));
+}
+
 TEST_F(CliTest, BadInputsFailWithAClearMessage) {
   const std::string bad_list = Temp("bad.txt");
   std::ofstream(bad_list) << "query/day/day_00000.jpg NO_SUCH_MODEL 10 10 1 2 3\n";
