@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <limits>
 #include <memory>
 #include <numeric>
@@ -124,6 +125,7 @@ class Trainer {
   bool CheckDue() const;
   void CheckHeldOut();
   void KeepAsBest(double accuracy);
+  void WriteSnapshot() const;
   void BankElapsedTime();
   void WriteCheckpoint();
   // After the loop: the last log entry, check and checkpoint, and the network to return.
@@ -369,10 +371,24 @@ void Trainer::CheckHeldOut() {
       EvaluateNetwork(*network_, scene_, tree_, check_sample_, &visibility_);
   module_->train();
   state_.checks.push_back({state_.iteration, seconds_before_check, evaluation.leaf_accuracy});
+  if (!options_.snapshot_dir.empty()) WriteSnapshot();
   if (evaluation.leaf_accuracy > state_.best_accuracy) KeepAsBest(evaluation.leaf_accuracy);
   check_status_ = fmt::format(" held-out {:.1f}% (best {:.1f}%)", 100 * evaluation.leaf_accuracy,
                               100 * state_.best_accuracy);
   progress_->SetStatus(check_status_);
+}
+
+void Trainer::WriteSnapshot() const {
+  std::filesystem::create_directories(options_.snapshot_dir);
+  const std::filesystem::path path = options_.snapshot_dir / SnapshotFileName(state_.iteration);
+  // A reader never sees half a snapshot.
+  const std::filesystem::path partial = path.string() + ".partial";
+  {
+    std::ofstream stream(partial, std::ios::binary);
+    network_->Save(stream);
+    if (!stream.flush()) ThrowInvalidArgument("cannot write the snapshot {}", partial.string());
+  }
+  std::filesystem::rename(partial, path);
 }
 
 void Trainer::KeepAsBest(double accuracy) {
@@ -541,6 +557,10 @@ NetworkOptions DefaultNetworkOptions(size_t num_points) {
   options.node_output_dim = rows;
   options.pooled_point_rows = true;
   return options;
+}
+
+std::string SnapshotFileName(int64_t iteration) {
+  return fmt::format("network-{:08d}.pt", iteration);
 }
 
 bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed) {

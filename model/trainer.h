@@ -96,6 +96,9 @@ struct TrainerOptions {
   int64_t checkpoint_every_iterations = 2000;
   // Continue from checkpoint_path when it exists.
   bool resume = false;
+  // Where each held-out check saves the network as it stands, as `network-<iteration>.pt` in the
+  // bundle's archive format, for localization accuracy against training time; empty: none.
+  std::filesystem::path snapshot_dir;
   int64_t log_every_iterations = 100;
   bool show_progress = true;
   void Check() const;
@@ -148,6 +151,9 @@ inline constexpr size_t kMinPointsForNodeOutputRows = 10000;
 // Widths for a map of this many points: from kMinPointsForNodeOutputRows points on, pooled point
 // rows (docs/decisions.md), narrowing on large maps so that the bundle stays small.
 NetworkOptions DefaultNetworkOptions(size_t num_points);
+// The file a held-out check at `iteration` writes into TrainerOptions::snapshot_dir; names sort by
+// iteration.
+std::string SnapshotFileName(int64_t iteration);
 
 // Whether observation `index` belongs to the held-out fraction (a hash of index and seed).
 bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed);

@@ -247,6 +247,7 @@ TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {
   options.halving_fractions = {};
   options.evaluations = 6;
   options.evaluation_observations = 1 << 20;  // every held-out observation
+  options.snapshot_dir = temp_dir_ / "snapshots";
   const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
   ASSERT_EQ(result.held_out_checks.size(), 6u);
   double best = 0;
@@ -263,6 +264,25 @@ TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {
       result.network, Map().scene, Map().tree,
       HeldOutObservations(Map().scene, options.holdout_fraction, 0), &Map().visibility);
   EXPECT_DOUBLE_EQ(evaluation.leaf_accuracy, best);
+
+  // Each check left the network as it stood then (not the best one), in the bundle's format
+  // (tables at half precision, so within a few observations of the check).
+  size_t snapshots = 0;
+  for (const auto& entry : fs::directory_iterator(options.snapshot_dir)) {
+    snapshots += entry.path().extension() == ".pt";
+  }
+  EXPECT_EQ(snapshots, result.held_out_checks.size());
+  for (const HeldOutCheck& check : {result.held_out_checks.back(), result.held_out_checks[1]}) {
+    std::ifstream stream(options.snapshot_dir / SnapshotFileName(check.iteration),
+                         std::ios::binary);
+    const Network snapshot = Network::Load(stream, "snapshot");
+    EXPECT_NEAR(EvaluateNetwork(snapshot, Map().scene, Map().tree,
+                                HeldOutObservations(Map().scene, options.holdout_fraction, 0),
+                                &Map().visibility)
+                    .leaf_accuracy,
+                check.point_accuracy, 0.01)
+        << "iteration " << check.iteration;
+  }
   // Without keep_best the last network comes back.
   options.keep_best = false;
   const TrainingResult last = TrainNetwork(Map().scene, Map().tree, options);

@@ -229,6 +229,9 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
   command->add_flag("--resume", options.resume, "Continue from the checkpoint when it exists");
   command->add_option("--checkpoint", arguments->checkpoint,
                       "Checkpoint file (default: MAP.checkpoint.pt beside the bundle)");
+  command->add_option("--snapshots", options.snapshot_dir,
+                      "Save the network at every held-out check into this folder "
+                      "(network-<iteration>.pt), for accuracy against training time");
   command
       ->add_option("--checkpoint-every", options.checkpoint_every_iterations,
                    "Iterations between checkpoints")
