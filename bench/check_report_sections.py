@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Checks that the performance report shows the time-to-accuracy and serving sections once its
-numbers hold them: adds a held-out curve and a server's measurements to the first scale row of
+numbers hold them: adds a held-out curve, a localization curve and a server's measurements to the first scale row of
 docs/performance.json, regenerates the report from it and reads the sections back.
 Usage: check_report_sections.py HSCLOC_BENCH PERFORMANCE_JSON WORK_DIR"""
 import json
@@ -17,6 +17,10 @@ row["held_out_curve"] = [
     {"iteration": 200, "seconds": 61.0, "point_accuracy": 0.93},
     {"iteration": 300, "seconds": 95.0, "point_accuracy": 0.91},
 ]
+row["localization_curve"] = [
+    {"iteration": 100, "seconds": 30.0, "day": 0.4, "night": 0.1},
+    {"iteration": 300, "seconds": 95.0, "day": 0.96, "night": 0.78},
+]
 row.update({"serve_rss_mb": 235.0, "process_baseline_rss_mb": 167.0, "serve_load_s": 0.15})
 (work / "performance.json").write_text(json.dumps(results))
 subprocess.run([bench, "--from-json", "--json", str(work / "performance.json"), "--report",
@@ -25,14 +29,15 @@ report = (work / "performance.md").read_text()
 preset = row["preset"]
 expected = [
     "## Time to accuracy",
-    f"| {preset} | 61 s (step 200) | 91.0 % at 95 s | 93.0 % at 61 s |",
+    f"| {preset} | 61 s (step 200) | 91.0 % at 95 s | 93.0 % at 61 s | 40 / 10 % at 30 s "
+    "| 96 / 78 % at 95 s |",
     "## Serving a map",
     f"| {preset} | {row['build_map_peak_mb']:.0f} MB | 235 MB | 68 MB | 167 MB | 0.15 s |",
 ]
 errors = [f"missing: {line}" for line in expected if line not in report]
 svg = work / "performance_training.svg"
-if not svg.exists() or svg.read_text().count("<path") != 1:
-    errors.append("performance_training.svg: expected one curve")
+if not svg.exists() or svg.read_text().count("<path") != 2:
+    errors.append("performance_training.svg: expected a held-out and a localization curve")
 if errors:
     print("\n".join(errors))
     sys.exit(1)

@@ -38,6 +38,7 @@
 #include "localization/query_runner.h"
 #include "map/map_blobs.h"
 #include "model/network.h"
+#include "model/trainer.h"
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
@@ -78,6 +79,9 @@ struct SyntheticMap {
   std::string hscloc;  // the tool that made it, which serves it too
 };
 
+// The networks `hscloc train` saved at its held-out checks.
+fs::path SnapshotDir(const SyntheticMap& map) { return map.map.parent_path() / "snapshots"; }
+
 SyntheticMap MakeSyntheticMap(const BenchOptions& options, const std::string& preset,
                               double train_minutes) {
   SyntheticMap result{
@@ -94,9 +98,11 @@ SyntheticMap MakeSyntheticMap(const BenchOptions& options, const std::string& pr
                 "--features", (result.city / "features.h5").string(), "--out", result.map.string()},
                logs / "build_map.log");
   Step(fmt::format("{}: train for {} min", preset, train_minutes));
+  fs::remove_all(SnapshotDir(result));
   const ChildRun train = RunChild({options.hscloc, "train", "--map", result.map.string(),
                                    "--minutes", fmt::format("{}", train_minutes), "--checkpoint",
-                                   (options.work / preset / "checkpoint.pt").string()},
+                                   (options.work / preset / "checkpoint.pt").string(),
+                                   "--snapshots", SnapshotDir(result).string()},
                                   logs / "train.log");
   std::ifstream stats_stream(result.city / "stats.json");
   const json stats = json::parse(stats_stream, nullptr, false);
@@ -107,6 +113,32 @@ SyntheticMap MakeSyntheticMap(const BenchOptions& options, const std::string& pr
                   {"train_peak_mb", train.peak_rss_mb},
                   {"city_stats", stats.is_discarded() ? json() : stats}};
   return result;
+}
+
+// Localization accuracy within (0.25 m, 2 deg) of each held-out check's network against its
+// training time: the curve a user reads to know how long their map needs.
+json LocalizationCurve(
+    const SyntheticMap& synthetic, std::shared_ptr<const LocalizationMap> map,
+    const json& held_out_curve,
+    const std::vector<std::pair<std::string, std::vector<LocalizationQuery>>>& queries_by_condition,
+    const std::vector<NamedPose>& ground_truth) {
+  json curve = json::array();
+  for (const json& check : held_out_curve) {
+    const auto iteration = check["iteration"].get<int64_t>();
+    const fs::path path = SnapshotDir(synthetic) / SnapshotFileName(iteration);
+    if (!fs::exists(path)) continue;
+    std::ifstream stream(path, std::ios::binary);
+    const auto network = std::make_shared<const Network>(Network::Load(stream, path.string()));
+    const Localizer localizer(map, network);
+    json point = {{"iteration", iteration}, {"seconds", check["seconds"]}};
+    for (const auto& [condition, queries] : queries_by_condition) {
+      const Evaluation evaluation =
+          Evaluate(localizer, LocalizerOptions{}, queries, ground_truth, condition);
+      point[condition] = evaluation.accuracy.localized_fraction.front();
+    }
+    curve.push_back(point);
+  }
+  return curve;
 }
 
 // Cost of one map: sizes, build, memory of the loaded map, accuracy and latency.
@@ -137,6 +169,7 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
   const std::vector<NamedPose> ground_truth = ReadPoses(synthetic.city / "queries_gt.txt");
   json conditions;
   std::vector<LocalizationQuery> day;
+  std::vector<std::pair<std::string, std::vector<LocalizationQuery>>> queries_for_curve;
   for (const std::string condition : {"day", "night"}) {
     Step(fmt::format("{}: localize {} queries, HSC and nearest neighbours", synthetic.preset,
                      condition));
@@ -144,6 +177,7 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
         synthetic.city / "queries" / fmt::format("{}_time_queries_with_intrinsics.txt", condition),
         *features, nullptr, queries_per_condition);
     if (condition == std::string("day")) day = queries;
+    queries_for_curve.emplace_back(condition, queries);
     json peers = ComparePeers(synthetic.preset + " " + condition, synthetic.map,
                               synthetic.build["train_s"].get<double>(), queries, ground_truth,
                               {{"skipped",
@@ -152,6 +186,16 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
     conditions[condition] = peers;
   }
   row["peers"] = conditions;
+  Step(fmt::format("{}: localization with the network of each held-out check", synthetic.preset));
+  const size_t curve_queries = std::max<size_t>(1, queries_per_condition / 4);
+  std::vector<std::pair<std::string, std::vector<LocalizationQuery>>> curve_sets;
+  for (const auto& [condition, queries] : queries_for_curve) {
+    curve_sets.emplace_back(
+        condition, std::vector<LocalizationQuery>(
+                       queries.begin(), queries.begin() + std::min(curve_queries, queries.size())));
+  }
+  row["localization_curve"] =
+      LocalizationCurve(synthetic, map, row["held_out_curve"], curve_sets, ground_truth);
   // Latency at the queries' own keypoint counts, all cores for one query.
   SetComputeThreads(0);
   std::vector<double> total;

@@ -105,6 +105,10 @@ std::string TrainingCurveSvg(const json& scale) {
   svg << fmt::format(
       "<text x='{}' y='{}' text-anchor='middle'>training wall time (log), 2 cores</text>\n",
       (x0 + x1) / 2, height - 6);
+  svg << fmt::format(
+      "<text x='{}' y='{}'>solid: held-out point</text><text x='{}' y='{}'>dashed: localized "
+      "by day</text>\n",
+      x1 + 10, y0 - 20, x1 + 10, y0 - 6);
   const char* colors[] = {"#1f77b4", "#ff7f0e", "#2ca02c", "#d62728"};
   size_t line = 0;
   for (const json& row : scale) {
@@ -119,6 +123,18 @@ std::string TrainingCurveSvg(const json& scale) {
       svg << fmt::format("<circle cx='{:.1f}' cy='{:.1f}' r='2.5' fill='{}'/>\n", x, y, color);
     }
     svg << fmt::format("<path d='{}' fill='none' stroke='{}'/>\n", path, color);
+    // Localization by day with each check's network, dashed.
+    std::string localized;
+    for (const json& point : row.value("localization_curve", json::array())) {
+      if (!point.contains("day")) continue;
+      const double x = x_of(point["seconds"].get<double>());
+      const double y = y_of(point["day"].get<double>());
+      localized += fmt::format("{}{:.1f},{:.1f}", localized.empty() ? "M" : " L", x, y);
+    }
+    if (!localized.empty()) {
+      svg << fmt::format("<path d='{}' fill='none' stroke='{}' stroke-dasharray='5,3'/>\n",
+                         localized, color);
+    }
     svg << fmt::format("<text x='{}' y='{}' fill='{}'>{}</text>\n", x1 + 10, y1 + 14 * (line + 1),
                        color, row["preset"].get<std::string>());
     ++line;
@@ -332,8 +348,9 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
   };
   if (any_row_has("held_out_curve")) {
     md << "## Time to accuracy\n\n![time to accuracy](performance_training.svg)\n\n"
-          "| preset | first check at 90 % or more | last check | best check |\n"
-          "| --- | --- | --- | --- |\n";
+          "| preset | first check at 90 % or more | last check | best check | localized day / "
+          "night, first check | last check |\n"
+          "| --- | --- | --- | --- | --- | --- |\n";
     for (const json& row : results["scale"]) {
       const json curve = row.value("held_out_curve", json::array());
       if (curve.empty()) continue;
@@ -352,11 +369,20 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
         return fmt::format("{:.1f} % at {:.0f} s", 100 * check["point_accuracy"].get<double>(),
                            check["seconds"].get<double>());
       };
-      md << fmt::format("| {} | {} | {} | {} |\n", row["preset"].get<std::string>(), first_90,
-                        describe(curve.back()), describe(*best));
+      const json localized = row.value("localization_curve", json::array());
+      const auto describe_localized = [](const json& point) {
+        return fmt::format("{:.0f} / {:.0f} % at {:.0f} s", 100 * point.value("day", 0.0),
+                           100 * point.value("night", 0.0), point["seconds"].get<double>());
+      };
+      md << fmt::format("| {} | {} | {} | {} | {} | {} |\n", row["preset"].get<std::string>(),
+                        first_90, describe(curve.back()), describe(*best),
+                        localized.empty() ? "-" : describe_localized(localized.front()),
+                        localized.empty() ? "-" : describe_localized(localized.back()));
     }
     md << "\nHeld-out point accuracy: the network's leaf for held-out observations of the map, "
-          "decoded with the visibility mask of their image, as `hscloc train` checks it.\n\n";
+          "decoded with the visibility mask of their image, as `hscloc train` checks it. "
+          "Localized: queries within (0.25 m, 2 deg) with the network saved at that check "
+          "(`hscloc train --snapshots`), a quarter of the accuracy table's queries.\n\n";
     std::ofstream(report_path.parent_path() / "performance_training.svg")
         << TrainingCurveSvg(results["scale"]);
   }
