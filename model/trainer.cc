@@ -126,6 +126,9 @@ class Trainer {
   void CheckHeldOut();
   void KeepAsBest(double accuracy);
   void WriteSnapshot() const;
+  bool StopRequested() const {
+    return options_.stop_requested != nullptr && options_.stop_requested->load();
+  }
   void BankElapsedTime();
   void WriteCheckpoint();
   // After the loop: the last log entry, check and checkpoint, and the network to return.
@@ -266,7 +269,7 @@ TrainingResult Trainer::Run() {
   timer_.Restart();
   sums_ = torch::zeros({1 + levels_}, torch::TensorOptions().device(device_));
   learning_rate_ = ScheduledLearningRate(options_, Progress());
-  while (!budget_.Spent(state_.iteration, Elapsed())) {
+  while (!budget_.Spent(state_.iteration, Elapsed()) && !StopRequested()) {
     Step();
     progress_->Advance();
     if (state_.iteration % options_.log_every_iterations == 0) FlushLog(state_.iteration);
@@ -465,6 +468,7 @@ TrainingResult Trainer::Result(bool restored_best) {
         restored_best ? state_.best_accuracy : state_.checks.back().point_accuracy;
     result.converged = Converged();
   }
+  result.interrupted = StopRequested() && !budget_.Spent(state_.iteration, state_.seconds_before);
   return result;
 }
 

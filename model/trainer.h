@@ -12,6 +12,7 @@
 // number of iterations (and the learning-rate schedule) depend on the machine.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <filesystem>
 #include <optional>
@@ -101,6 +102,9 @@ struct TrainerOptions {
   std::filesystem::path snapshot_dir;
   int64_t log_every_iterations = 100;
   bool show_progress = true;
+  // When set (by another thread or a signal handler), training ends after the current step as if
+  // its budget were spent: the last check, the checkpoint and the best network are kept.
+  const std::atomic<bool>* stop_requested = nullptr;
   void Check() const;
 };
 
@@ -137,6 +141,8 @@ struct TrainingResult {
   // Whether the held-out accuracy gained less than 5 % (relative) over the last quarter of the
   // budget.
   bool converged = false;
+  // Ended by TrainerOptions::stop_requested before the budget was spent.
+  bool interrupted = false;
 
   // "iteration,seconds,learning_rate,loss,accuracy_level1,..." and one line per entry.
   std::string LogCsv() const;

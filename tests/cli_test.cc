@@ -8,10 +8,12 @@
 #include <fstream>
 #include <map>
 #include <sstream>
+#include <thread>
 
+#include "map/map_bundle.h"
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
-#include "tests/serve_process.h"
+#include "tests/hscloc_process.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -120,9 +122,9 @@ TEST_F(CliTest, ClientBatchThroughTheServerEqualsOfflineLocalize) {
                                NightList(), Features(), offline),
                    temp_ / "offline.log"),
             0);
-  testing::ServeProcess server({"--map", Map(), "--bind", "tcp://127.0.0.1:0", "--admin-bind",
-                                "tcp://127.0.0.1:0", "--workers", "2"},
-                               temp_ / "serve.log");
+  testing::HsclocProcess server({"serve", "--map", Map(), "--bind", "tcp://127.0.0.1:0",
+                                 "--admin-bind", "tcp://127.0.0.1:0", "--workers", "2"},
+                                temp_ / "serve.log");
   const std::string endpoint = server.WaitForLine("listening on ");
   ASSERT_FALSE(endpoint.empty()) << server.Log();
   const std::string served = Temp("served.txt");
@@ -247,6 +249,29 @@ TEST(TriangulateCliTest, BadInputsFailWithAClearMessage) {
                         temp / "colmap.log"),
             2);
   EXPECT_THAT(ReadText(temp / "colmap.log"), HasSubstr("'/nowhere/colmap' was not found"));
+}
+
+// Ctrl-C during a long training keeps what was learned: the network so far goes into the bundle
+// and the checkpoint, and the command says so and exits 0.
+TEST_F(CliTest, InterruptedTrainingKeepsTheNetworkSoFar) {
+  const fs::path map = temp_ / "map";
+  fs::copy(map_, map, fs::copy_options::recursive);
+  const fs::path log = temp_ / "train.log";
+  testing::HsclocProcess train({"train", "--map", map.string(), "--iterations", "1000000",
+                                "--checkpoint", Temp("train.ckpt"), "--threads", "1"},
+                               log);
+  ASSERT_FALSE(train.WaitForLine("loaded ").empty()) << train.Log();
+  std::this_thread::sleep_for(std::chrono::seconds(3));
+  ASSERT_EQ(train.Terminate(SIGINT), 0) << train.Log();
+  const std::string output = ReadText(log);
+  const size_t at = output.find("interrupted after ");
+  ASSERT_NE(at, std::string::npos) << output;
+  const int64_t iterations = std::stoll(output.substr(at + 18));
+  EXPECT_GT(iterations, 0);
+  EXPECT_LT(iterations, 1000000);
+  EXPECT_TRUE(fs::exists(Temp("train.ckpt")));
+  const MapBundle bundle = MapBundle::Open(map);
+  EXPECT_EQ(bundle.metadata()["network"]["training"]["iterations"], iterations);
 }
 
 TEST_F(CliTest, BadInputsFailWithAClearMessage) {

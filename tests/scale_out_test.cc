@@ -12,7 +12,7 @@
 #include "server/broker.h"
 #include "server/loopback_testing.h"
 #include "server/wire.h"
-#include "tests/serve_process.h"
+#include "tests/hscloc_process.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -21,11 +21,11 @@ namespace {
 namespace fs = std::filesystem;
 
 // A worker process: `hscloc serve --connect BACKEND`, its admin endpoint on a free port.
-testing::ServeProcess StartWorker(const fs::path& map, const std::string& backend,
-                                  const fs::path& log) {
-  return testing::ServeProcess({"--map", map.string(), "--connect", backend, "--workers", "1",
-                                "--admin-bind", "tcp://127.0.0.1:0"},
-                               log);
+testing::HsclocProcess StartWorker(const fs::path& map, const std::string& backend,
+                                   const fs::path& log) {
+  return testing::HsclocProcess({"serve", "--map", map.string(), "--connect", backend, "--workers",
+                                 "1", "--admin-bind", "tcp://127.0.0.1:0"},
+                                log);
 }
 
 TEST(ScaleOutTest, AKilledWorkerLosesNoRequest) {
@@ -35,8 +35,8 @@ TEST(ScaleOutTest, AKilledWorkerLosesNoRequest) {
   options.heartbeat_interval = std::chrono::milliseconds(200);
   Broker broker(options);
   const auto [front, back] = broker.Start();
-  testing::ServeProcess first = StartWorker(dir / "map", back, temp / "worker1.log");
-  testing::ServeProcess second = StartWorker(dir / "map", back, temp / "worker2.log");
+  testing::HsclocProcess first = StartWorker(dir / "map", back, temp / "worker1.log");
+  testing::HsclocProcess second = StartWorker(dir / "map", back, temp / "worker2.log");
 
   std::vector<wire::LocalizeRequest> requests;
   const auto features = OpenH5Features(dir / "city" / "features.h5");

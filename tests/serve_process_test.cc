@@ -1,7 +1,5 @@
 // `hscloc serve` as a process: a SIGTERM in the middle of a burst of reloads, the probes of a
 // worker that has no broker, and security flags that a mode cannot honour.
-#include "tests/serve_process.h"
-
 #include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -13,6 +11,7 @@
 
 #include "client/localization_client.h"
 #include "server/wire.h"
+#include "tests/hscloc_process.h"
 #include "util/testing.h"
 #include "util/timer.h"
 
@@ -26,9 +25,10 @@ using testing::ReadText;
 TEST(ServeProcessTest, SigtermDuringABurstOfReloadsWaitsForOneReloadAtMost) {
   HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
   testing::TempDir temp;
-  testing::ServeProcess server({"--map", (dir / "map").string(), "--bind", "tcp://127.0.0.1:0",
-                                "--admin-bind", "tcp://127.0.0.1:0", "--workers", "1"},
-                               temp / "serve.log");
+  testing::HsclocProcess server(
+      {"serve", "--map", (dir / "map").string(), "--bind", "tcp://127.0.0.1:0", "--admin-bind",
+       "tcp://127.0.0.1:0", "--workers", "1"},
+      temp / "serve.log");
   const std::string admin = server.WaitForLine("admin on ");
   ASSERT_FALSE(admin.empty()) << server.Log();
   ClientOptions options;
@@ -67,9 +67,10 @@ TEST(ServeProcessTest, SigtermDuringABurstOfReloadsWaitsForOneReloadAtMost) {
 TEST(ServeProcessTest, AWorkerWithoutABrokerIsAliveAndNotReady) {
   HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
   testing::TempDir temp;
-  testing::ServeProcess worker({"--map", (dir / "map").string(), "--connect", "tcp://127.0.0.1:1",
-                                "--admin-bind", "tcp://127.0.0.1:0", "--workers", "1"},
-                               temp / "worker.log");
+  testing::HsclocProcess worker(
+      {"serve", "--map", (dir / "map").string(), "--connect", "tcp://127.0.0.1:1", "--admin-bind",
+       "tcp://127.0.0.1:0", "--workers", "1"},
+      temp / "worker.log");
   const std::string admin = worker.WaitForLine("admin on ");
   ASSERT_FALSE(admin.empty()) << worker.Log();
   // The manifests' probes: liveness, then readiness, on the process's own admin endpoint.

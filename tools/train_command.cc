@@ -1,5 +1,7 @@
 #include <fmt/format.h>
+#include <signal.h>
 
+#include <atomic>
 #include <iostream>
 #include <memory>
 #include <string>
@@ -84,6 +86,20 @@ void ChooseOutputLayers(const std::string& output, size_t num_points, bool node_
   network.pooled_point_rows = output == "pooled";
 }
 
+// Set by SIGINT or SIGTERM: training stops after its current step and keeps what it learned.
+std::atomic<bool> stop_training{false};
+static_assert(std::atomic<bool>::is_always_lock_free, "set from a signal handler");
+
+// The first Ctrl-C ends training cleanly; the handler then resets, so a second one kills.
+void StopTrainingOnSignals() {
+  struct sigaction action {};
+  action.sa_handler = [](int) { stop_training.store(true); };
+  action.sa_flags = SA_RESETHAND;
+  sigemptyset(&action.sa_mask);
+  sigaction(SIGINT, &action, nullptr);
+  sigaction(SIGTERM, &action, nullptr);
+}
+
 int RunTrain(TrainArguments& arguments) {
   TrainerOptions& options = arguments.options;
   options.device = ParseComputeDevice(arguments.device);
@@ -140,7 +156,14 @@ int RunTrain(TrainArguments& arguments) {
   }
 
   options.Check();
+  options.stop_requested = &stop_training;
+  StopTrainingOnSignals();
   const TrainingResult result = TrainNetwork(map->scene(), map->label_tree(), options);
+  if (result.interrupted) {
+    std::cout << fmt::format(
+        "interrupted after {} iterations: the network so far is kept (continue with --resume)\n",
+        result.iterations);
+  }
   std::cout << fmt::format(
       "trained {} iterations in {} on {} observations ({} held out), {} parameters\n"
       "  final loss {:.4f}, training accuracy per level (teacher-forced):",

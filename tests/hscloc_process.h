@@ -1,5 +1,6 @@
-// `hscloc serve` as a child process for the end-to-end tests (HSCLOC_BINARY, defined by the test
-// target): its output goes to a log, from which the endpoints it printed are read.
+// `hscloc` as a child process for the end-to-end tests (HSCLOC_BINARY, defined by the test
+// target): its output goes to a log, from which the lines it printed (endpoints, progress) are
+// read, and it can be signalled.
 #pragma once
 
 #include <fmt/format.h>
@@ -22,16 +23,16 @@ inline std::string ReadText(const std::filesystem::path& path) {
   return std::string(std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>());
 }
 
-class ServeProcess {
+class HsclocProcess {
  public:
-  // Starts `hscloc serve ARGUMENTS...` with stdout and stderr in `log`.
-  ServeProcess(const std::vector<std::string>& arguments, std::filesystem::path log)
+  // Starts `hscloc ARGUMENTS...` (the subcommand first) with stdout and stderr in `log`.
+  HsclocProcess(const std::vector<std::string>& arguments, std::filesystem::path log)
       : log_(std::move(log)) {
     pid_ = fork();
     if (pid_ == 0) {
       freopen(log_.c_str(), "w", stdout);
       freopen(log_.c_str(), "a", stderr);
-      std::vector<char*> argv = {const_cast<char*>(HSCLOC_BINARY), const_cast<char*>("serve")};
+      std::vector<char*> argv = {const_cast<char*>(HSCLOC_BINARY)};
       for (const std::string& argument : arguments)
         argv.push_back(const_cast<char*>(argument.c_str()));
       argv.push_back(nullptr);
@@ -39,19 +40,20 @@ class ServeProcess {
       _exit(127);
     }
   }
-  ~ServeProcess() { Kill(); }
-  ServeProcess(const ServeProcess&) = delete;
-  ServeProcess& operator=(const ServeProcess&) = delete;
+  ~HsclocProcess() { Kill(); }
+  HsclocProcess(const HsclocProcess&) = delete;
+  HsclocProcess& operator=(const HsclocProcess&) = delete;
 
   std::string Log() const { return ReadText(log_); }
   // The rest of the first log line that starts with `prefix` ("listening on ", "admin on "),
-  // waiting up to a minute for it; empty when it does not come.
+  // waiting up to a minute for it; empty when it does not come. Progress bars redraw with '\r':
+  // a line starts after either.
   std::string WaitForLine(const std::string& prefix) const {
     for (int wait = 0; wait < 600; ++wait) {
       const std::string log = Log();
       for (size_t at = log.find(prefix); at != std::string::npos; at = log.find(prefix, at + 1)) {
         const size_t end = log.find('\n', at);
-        if ((at == 0 || log[at - 1] == '\n') && end != std::string::npos) {
+        if ((at == 0 || log[at - 1] == '\n' || log[at - 1] == '\r') && end != std::string::npos) {
           return log.substr(at + prefix.size(), end - at - prefix.size());
         }
       }
@@ -65,9 +67,10 @@ class ServeProcess {
     waitpid(pid_, nullptr, 0);
     pid_ = -1;
   }
-  // SIGTERM, then the exit status (-1 when it did not exit normally).
-  int Terminate() {
-    kill(pid_, SIGTERM);
+  // Sends `signal` (SIGTERM by default), then returns the exit status (-1 when it did not exit
+  // normally).
+  int Terminate(int signal = SIGTERM) {
+    kill(pid_, signal);
     int status = 0;
     waitpid(pid_, &status, 0);
     pid_ = -1;
