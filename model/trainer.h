@@ -160,6 +160,9 @@ NetworkOptions DefaultNetworkOptions(size_t num_points);
 // The file a held-out check at `iteration` writes into TrainerOptions::snapshot_dir; names sort by
 // iteration.
 std::string SnapshotFileName(int64_t iteration);
+// Whether a network with these output layers conditions on node embeddings by default: not with
+// pooled point rows.
+bool DefaultNodeConditioning(const NetworkOptions& options);
 
 // Whether observation `index` belongs to the held-out fraction (a hash of index and seed).
 bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed);

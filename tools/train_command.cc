@@ -26,7 +26,7 @@ struct TrainArguments {
   bool eval = false;
   bool eval_only = false;
   bool paper = false;
-  bool no_node_conditioning = false;
+  std::string conditioning;  // empty: from the output layers
   bool visibility_softmax = false;
   bool dense_node_updates = false;
   bool no_keep_best = false;
@@ -73,17 +73,16 @@ void ChooseOutputLayers(const std::string& output, size_t num_points, bool node_
   const NetworkOptions defaults = DefaultNetworkOptions(num_points);
   if (output.empty()) {
     network.pooled_point_rows = defaults.pooled_point_rows && network.node_output_dim > 0;
-    return;
-  }
-  if (output == "shared") {
+  } else if (output == "shared") {
     network.node_output_dim = 0;
     network.pooled_point_rows = false;
-    return;
+  } else {
+    if (!node_output_dim_given && network.node_output_dim == 0) {
+      network.node_output_dim = DefaultNetworkOptions(kMinPointsForNodeOutputRows).node_output_dim;
+    }
+    network.pooled_point_rows = output == "pooled";
   }
-  if (!node_output_dim_given && network.node_output_dim == 0) {
-    network.node_output_dim = DefaultNetworkOptions(kMinPointsForNodeOutputRows).node_output_dim;
-  }
-  network.pooled_point_rows = output == "pooled";
+  network.node_conditioning = DefaultNodeConditioning(network);
 }
 
 // Set by SIGINT or SIGTERM: training stops after its current step and keeps what it learned.
@@ -130,7 +129,9 @@ int RunTrain(TrainArguments& arguments) {
     ChooseOutputLayers(arguments.output, map->scene().NumPoints(), arguments.node_output_dim_given,
                        options.network);
   }
-  if (arguments.no_node_conditioning) options.network.node_conditioning = false;
+  if (!arguments.conditioning.empty()) {
+    options.network.node_conditioning = arguments.conditioning == "nodes";
+  }
   if (arguments.visibility_softmax) options.visibility_softmax = true;
   if (arguments.dense_node_updates) options.sparse_node_updates = false;
   if (arguments.no_keep_best) options.keep_best = false;
@@ -230,8 +231,12 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
                    "row per tree node), pooled (a row per point, pooled over each child's points "
                    "the image sees); default from the map's size")
       ->check(CLI::IsMember({"shared", "node", "pooled"}));
-  command->add_flag("--no-node-conditioning", arguments->no_node_conditioning,
-                    "Condition on summed label embeddings (the paper) instead of node rows");
+  command
+      ->add_option("--conditioning", arguments->conditioning,
+                   "What the generator reads beside the image: labels (the sum of one embedding "
+                   "per coarser label, the paper's) or nodes (one embedding per parent node); "
+                   "default: labels with pooled output rows, nodes otherwise")
+      ->check(CLI::IsMember({"labels", "nodes"}));
   command->add_flag("--visibility-softmax", arguments->visibility_softmax,
                     "Train each level's softmax over the children the image sees only (then "
                     "localize with --masked-decoding)");
