@@ -276,8 +276,10 @@ int Run(const BenchOptions& options) {
 
   const double minutes = options.quick ? 1 : 8;
   results["real_sets"] = json::array();
-  for (const std::string set : {"fountain-P11", "lund"}) {
-    results["real_sets"].push_back(RealSetPeers(options, set, options.quick ? 0.3 : 3));
+  for (const LocalFeature feature : {LocalFeature::kSift, LocalFeature::kXFeat}) {
+    for (const std::string set : {"fountain-P11", "lund"}) {
+      results["real_sets"].push_back(RealSetPeers(options, set, feature, options.quick ? 0.3 : 3));
+    }
   }
 
   results["scale"] = json::array();

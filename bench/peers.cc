@@ -115,37 +115,64 @@ json ComparePeers(const std::string& name, const fs::path& bundle, double train_
   return peers;
 }
 
-json RealSetPeers(const BenchOptions& options, const std::string& set, double train_minutes) {
+json RealSetPeers(const BenchOptions& options, const std::string& set, LocalFeature feature,
+                  double train_minutes) {
   const fs::path set_dir = options.data / set;
+  const bool xfeat = feature == LocalFeature::kXFeat;
+  const std::string name = xfeat ? set + ", XFeat" : set;
   if (!fs::exists(set_dir / "database.db")) {
-    return {{"set", set}, {"skipped", fmt::format("{} not found", set_dir.string())}};
+    return {{"set", name}, {"skipped", fmt::format("{} not found", set_dir.string())}};
   }
-  const fs::path bundle = options.work / set / "map";
-  Step(fmt::format("{}: build-map and train for {} min", set, train_minutes));
+  const fs::path work = options.work / (xfeat ? set + "-xfeat" : set);
+  const fs::path bundle = work / "map";
+  // SIFT comes with the set (its database and map); XFeat is extracted from the photos and its
+  // map triangulated from the set map's poses, as a user would make them.
+  fs::path model = set_dir / "map";
+  fs::path features = set_dir / "database.db";
+  if (xfeat) {
+    const fs::path weights = options.data / "weights" / "xfeat" / "xfeat.onnx";
+    if (!fs::exists(weights)) {
+      return {{"set", name}, {"skipped", fmt::format("{} not found", weights.string())}};
+    }
+    features = work / "features.h5";
+    model = work / "model";
+    Step(fmt::format("{}: extract XFeat and triangulate the map", name));
+    fs::remove_all(work);
+    RunChild({options.hscloc, "extract", "--images", (set_dir / "images").string(), "--feature",
+              "xfeat", "--xfeat-model", weights.string(), "--out", features.string()},
+             work / "extract.log");
+    RunChild(
+        {options.hscloc, "triangulate", "--model", (set_dir / "map").string(), "--features",
+         features.string(), "--images", (set_dir / "images").string(), "--out", model.string()},
+        work / "triangulate.log");
+  }
+  Step(fmt::format("{}: build-map and train for {} min", name, train_minutes));
   fs::remove_all(bundle);
-  RunChild({options.hscloc, "build-map", "--model", (set_dir / "map").string(), "--features",
-            (set_dir / "database.db").string(), "--out", bundle.string()},
-           options.work / set / "build_map.log");
-  const ChildRun train = RunChild({options.hscloc, "train", "--map", bundle.string(), "--minutes",
-                                   fmt::format("{}", train_minutes), "--checkpoint",
-                                   (options.work / set / "checkpoint.pt").string()},
-                                  options.work / set / "train.log");
-  const auto features = OpenColmapDatabaseFeatures(set_dir / "database.db");
+  RunChild({options.hscloc, "build-map", "--model", model.string(), "--features", features.string(),
+            "--out", bundle.string()},
+           work / "build_map.log");
+  const ChildRun train = RunChild(
+      {options.hscloc, "train", "--map", bundle.string(), "--minutes",
+       fmt::format("{}", train_minutes), "--checkpoint", (work / "checkpoint.pt").string()},
+      work / "train.log");
+  const auto reader = OpenFeatureReader(features);
   const std::vector<QueryWithIntrinsics> list =
       ReadQueryList(set_dir / "queries_with_intrinsics.txt");
   const std::vector<NamedPose> ground_truth = ReadPoses(set_dir / "queries_gt.txt");
   const std::vector<LocalizationQuery> queries =
-      LoadQueries(set_dir / "queries_with_intrinsics.txt", *features, nullptr, list.size());
-  Step(fmt::format("{}: COLMAP image_registrator", set));
-  json colmap;
-  try {
-    colmap = RunColmapRegistration(options, set_dir, list, ground_truth);
-  } catch (const std::exception& error) {
-    colmap = {{"skipped", error.what()}};
+      LoadQueries(set_dir / "queries_with_intrinsics.txt", *reader, nullptr, list.size());
+  json colmap = {{"skipped", "COLMAP's image_registrator matches SIFT only"}};
+  if (!xfeat) {
+    Step(fmt::format("{}: COLMAP image_registrator", name));
+    try {
+      colmap = RunColmapRegistration(options, set_dir, list, ground_truth);
+    } catch (const std::exception& error) {
+      colmap = {{"skipped", error.what()}};
+    }
   }
-  Step(fmt::format("{}: HSC and nearest neighbours", set));
-  json peers = ComparePeers(set, bundle, train.seconds, queries, ground_truth, colmap);
-  peers["sizes"]["colmap_database_bytes"] = fs::file_size(set_dir / "database.db");
+  Step(fmt::format("{}: HSC and nearest neighbours", name));
+  json peers = ComparePeers(name, bundle, train.seconds, queries, ground_truth, colmap);
+  if (!xfeat) peers["sizes"]["colmap_database_bytes"] = fs::file_size(set_dir / "database.db");
   return peers;
 }
 

@@ -27,8 +27,11 @@ nlohmann::json ComparePeers(const std::string& name, const std::filesystem::path
                             double train_seconds, const std::vector<LocalizationQuery>& queries,
                             const std::vector<NamedPose>& ground_truth,
                             const nlohmann::json& colmap);
+enum class LocalFeature { kSift, kXFeat };
 // A real set of the data directory: build-map, train for `train_minutes`, then ComparePeers.
+// SIFT: the set's own database and map, and COLMAP's registration beside; XFeat: `hscloc extract`
+// on its photos and `hscloc triangulate` from its map's poses first (named "SET, XFeat").
 nlohmann::json RealSetPeers(const BenchOptions& options, const std::string& set,
-                            double train_minutes);
+                            LocalFeature feature, double train_minutes);
 
 }  // namespace hscloc::bench
