@@ -68,6 +68,11 @@ json NetworkAgainstFloor(const Localizer& localizer, const LocalizationQuery& qu
   for (uint32_t k = 0; k < 10; ++k) {
     images.push_back(k * 97 % static_cast<uint32_t>(localizer.map().scene().NumImages()));
   }
+  // Decoded as the localizer decodes it: a network trained for the visibility mask (pooled point
+  // rows) chooses among the children the image sees; without the mask the libtorch path would
+  // score every point under every parent.
+  const Visibility* mask =
+      network.options().masked_decoding ? &localizer.map().visibility() : nullptr;
   SetComputeThreads(0);
   const auto time_ms = [&](const std::function<void()>& run) {
     run();
@@ -81,11 +86,11 @@ json NetworkAgainstFloor(const Localizer& localizer, const LocalizationQuery& qu
   };
   std::vector<double> level_ms;
   const double kernels_ms = time_ms([&] {
-    level_ms = network.Predict(padded.descriptors, images, localizer.map().label_tree())
+    level_ms = network.Predict(padded.descriptors, images, localizer.map().label_tree(), mask)
                    .level_milliseconds;
   });
   const double torch_ms = time_ms([&] {
-    network.PredictWithLibtorch(padded.descriptors, images, localizer.map().label_tree());
+    network.PredictWithLibtorch(padded.descriptors, images, localizer.map().label_tree(), mask);
   });
   const double flops = network.PredictFlops(2000, 10, localizer.map().label_tree());
   const double peak = peaks["peak_gflops"].get<double>();
