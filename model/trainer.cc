@@ -538,41 +538,8 @@ std::string TrainingResult::LogCsv() const {
   return csv;
 }
 
-double DefaultEpochs(size_t num_training_observations, const NetworkOptions& network) {
-  // Small maps need many passes (few views per point); large ones fewer, each pass being longer.
-  const double n = std::max<double>(1, static_cast<double>(num_training_observations));
-  if (network.pooled_point_rows) return std::clamp(3.0 * std::sqrt(1e6 / n), 1.5, 400.0);
-  return std::clamp(12.0 * std::sqrt(1e6 / n), 10.0, 400.0);
-}
-
-NetworkOptions DefaultNetworkOptions(size_t num_points) {
-  NetworkOptions options;
-  // A map of a few thousand points has few parents per level, which one shared output layer
-  // serves; per-node rows, each learned from the few views of its points, generalized worse on
-  // Lund (532 points: 3 of 5 queries within (0.25 m, 2 deg) against 4 of 5, docs/decisions.md).
-  if (num_points < kMinPointsForNodeOutputRows) {
-    options.node_output_dim = 0;
-    return options;
-  }
-  // The node output rows are most of the network's bytes: at most about 6 M numbers (24 MB), so
-  // that the HSC bundle stays under a fifth of the nearest-neighbour map (docs/decisions.md).
-  int rows = 64;
-  while (rows > 16 && static_cast<double>(num_points) * (rows + 1) > 6e6) rows /= 2;
-  options.node_output_dim = rows;
-  options.pooled_point_rows = true;
-  options.node_conditioning = DefaultNodeConditioning(options);
-  return options;
-}
-
 std::string SnapshotFileName(int64_t iteration) {
   return fmt::format("network-{:08d}.pt", iteration);
-}
-
-bool DefaultNodeConditioning(const NetworkOptions& options) {
-  // Pooled point rows score a child through its own points, which already tell parents apart;
-  // a node table beside them is most of a large network's bytes (two thirds on the aachen
-  // preset) and moved no held-out accuracy measurably (docs/decisions.md).
-  return !options.pooled_point_rows;
 }
 
 bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed) {

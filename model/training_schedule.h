@@ -1,5 +1,6 @@
-// The trainer's budget and learning-rate schedule (model/trainer.cc). Private to model/: nothing
-// outside model/ includes this header.
+// The trainer's budget and learning-rate schedule (model/trainer.cc); training_schedule.cc also
+// defines the defaults a map gets from its size (declared in model/trainer.h). Private to
+// model/: nothing outside model/ includes this header.
 #pragma once
 
 #include <cstddef>
