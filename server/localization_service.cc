@@ -268,8 +268,8 @@ wire::Response LocalizationService::InfoReply() const {
 void LocalizationService::Reply(const Job& job, const wire::Response& response) {
   // Counted first, so that a client holding its reply finds it counted.
   metrics_->CountReply(job.request, response.status());
-  SendReply(job.origin == Origin::kAdmin ? zmq_->admin : zmq_->router, job.envelope, response);
   ++answered_;
+  SendReply(job.origin == Origin::kAdmin ? zmq_->admin : zmq_->router, job.envelope, response);
 }
 
 // Moves one message of the replies channel to the socket its first frame names.
@@ -279,8 +279,9 @@ void LocalizationService::ForwardReply() {
   const bool admin = frames.front().size() == 1 &&
                      *frames.front().data<char>() == static_cast<char>(Origin::kAdmin);
   frames.erase(frames.begin());
-  SendFrames(admin ? zmq_->admin : zmq_->router, frames);
+  // Counted first, as in Reply.
   ++answered_;
+  SendFrames(admin ? zmq_->admin : zmq_->router, frames);
 }
 
 // Queues a reply on the replies channel (from a worker or the reload thread).
@@ -444,9 +445,9 @@ void LocalizationService::RefuseLateRequests(zmq::socket_t& socket) {
     request.ParseFromArray(frames.back().data(), static_cast<int>(frames.back().size()));
     frames.pop_back();
     metrics_->CountReply(request, wire::UNAVAILABLE);
+    ++answered_;
     SendReply(socket, frames,
               RefusalFor(request, wire::UNAVAILABLE, "the server is shutting down"));
-    ++answered_;
   }
 }
 
