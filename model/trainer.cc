@@ -266,6 +266,7 @@ TrainingResult Trainer::Run() {
       "train",
       budget_iterations > 0 ? budget_iterations - std::min(state_.iteration, budget_iterations) : 0,
       options_.show_progress ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever);
+  if (budget_.seconds > 0) progress_->SetTimeLimit(budget_.seconds - state_.seconds_before);
   timer_.Restart();
   sums_ = torch::zeros({1 + levels_}, torch::TensorOptions().device(device_));
   learning_rate_ = ScheduledLearningRate(options_, Progress());

@@ -78,24 +78,38 @@ void ProgressBar::Finish() {
   finished_ = true;
 }
 
+void ProgressBar::SetTimeLimit(double seconds) {
+  time_limit_s_.store(std::max(0.0, seconds), std::memory_order_relaxed);
+}
+
 std::string ProgressBar::Render() const {
   const uint64_t done = done_.load(std::memory_order_relaxed);
   const double elapsed_s = timer_.ElapsedSeconds();
+  const double time_limit_s = time_limit_s_.load(std::memory_order_relaxed);
   const double rate = elapsed_s > 0 ? done / elapsed_s : 0.0;
-  std::string line = label_;
+  // Whichever of the units and the time limit ends the work first sets the fraction and the ETA.
+  double fraction = 0;
+  double remaining_s = -1;
   if (total_ > 0) {
-    const double fraction = std::min(1.0, static_cast<double>(done) / total_);
+    fraction = std::min(1.0, static_cast<double>(done) / total_);
+    if (done > 0 && done < total_) remaining_s = (total_ - done) / rate;
+  }
+  if (time_limit_s > 0) {
+    fraction = std::max(fraction, std::min(1.0, elapsed_s / time_limit_s));
+    const double left_s = std::max(0.0, time_limit_s - elapsed_s);
+    remaining_s = remaining_s < 0 ? left_s : std::min(remaining_s, left_s);
+  }
+  std::string line = label_;
+  if (total_ > 0 || time_limit_s > 0) {
     const int filled = static_cast<int>(fraction * kBarWidth);
-    line += fmt::format(" [{}{}] {:3.0f}% {}/{}", std::string(filled, '#'),
-                        std::string(kBarWidth - filled, '.'), 100 * fraction, FormatCount(done),
-                        FormatCount(total_));
+    line += fmt::format(" [{}{}] {:3.0f}% {}", std::string(filled, '#'),
+                        std::string(kBarWidth - filled, '.'), 100 * fraction, FormatCount(done));
+    if (total_ > 0) line += "/" + FormatCount(total_);
   } else {
     line += fmt::format(" {}", FormatCount(done));
   }
   line += fmt::format(" {}/s {}", FormatCount(rate), FormatDuration(elapsed_s));
-  if (total_ > 0 && done > 0 && done < total_) {
-    line += fmt::format(" ETA {}", FormatDuration((total_ - done) / rate));
-  }
+  if (remaining_s > 0 && fraction < 1) line += fmt::format(" ETA {}", FormatDuration(remaining_s));
   std::lock_guard<std::mutex> lock(mutex_);
   if (!status_.empty()) line += " " + status_;
   return line;

@@ -24,6 +24,9 @@ class ProgressBar {
   ProgressBar& operator=(const ProgressBar&) = delete;
 
   void Advance(uint64_t units = 1);
+  // The work also ends after this many seconds from the bar's start (a time budget): percentage
+  // and ETA then follow whichever of the two ends first. <= 0: no time limit (the default).
+  void SetTimeLimit(double seconds);
   // Sets a short status shown after the counters (a loss, an accuracy).
   void SetStatus(std::string status);
   // Draws the final state and ends the line; called by the destructor if not before.
@@ -44,6 +47,7 @@ class ProgressBar {
   const bool redraw_;  // redraw one line (a terminal) rather than log whole lines
   std::atomic<uint64_t> done_{0};
   std::atomic<double> next_draw_s_{0.0};
+  std::atomic<double> time_limit_s_{0.0};
   mutable std::mutex mutex_;
   std::string status_;
   bool finished_ = false;

@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <thread>
 #include <vector>
@@ -12,6 +13,7 @@
 namespace hscloc {
 namespace {
 
+using ::testing::AnyOf;
 using ::testing::HasSubstr;
 using ::testing::Not;
 
@@ -37,6 +39,29 @@ TEST(ProgressBar, RendersPercentEtaAndStatus) {
   EXPECT_THAT(line, HasSubstr(" 25% 50/200"));
   EXPECT_THAT(line, HasSubstr("ETA"));
   EXPECT_THAT(line, HasSubstr("loss 0.42"));
+}
+
+TEST(ProgressBar, ATimeLimitGivesPercentAndEtaWithoutATotal) {
+  ProgressBar bar("train", 0, ProgressBar::Display::kNever);
+  bar.Advance(3);
+  bar.SetTimeLimit(600);
+  const std::string line = bar.Render();
+  EXPECT_THAT(line, HasSubstr("train ["));
+  EXPECT_THAT(line, HasSubstr("  0% 3 "));
+  EXPECT_THAT(line, AnyOf(HasSubstr("ETA 9 min 59 s"), HasSubstr("ETA 10 min 00 s")));
+}
+
+TEST(ProgressBar, TheEarlierOfUnitsAndTimeLimitSetsTheEta) {
+  ProgressBar bar("train", 1000000, ProgressBar::Display::kNever);
+  bar.Advance(1);
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  // At this rate the units would take hours; the 10 minutes end the work first.
+  bar.SetTimeLimit(600);
+  EXPECT_THAT(bar.Render(), AnyOf(HasSubstr("ETA 9 min 59 s"), HasSubstr("ETA 10 min 00 s")));
+  EXPECT_THAT(bar.Render(), HasSubstr("1/1.00M"));
+  // Without it, the units' ETA stands.
+  bar.SetTimeLimit(0);
+  EXPECT_THAT(bar.Render(), Not(HasSubstr("ETA 9 min")));
 }
 
 TEST(ProgressBar, UnknownTotalShowsCountOnly) {
