@@ -150,10 +150,15 @@ TEST_F(AblationTest, BadInputsAreRejectedByName) {
 
 TEST(AblationVariantsTest, ThePaperFirstThenOneSwitchEach) {
   const std::vector<AblationVariant> variants = StandardAblationVariants();
-  ASSERT_EQ(variants.size(), 5u);
-  const LocalizerOptions paper;
-  EXPECT_EQ(variants[0].options.top_k, paper.top_k);
+  ASSERT_EQ(variants.size(), 6u);
+  const LocalizerOptions defaults;
+  EXPECT_EQ(variants[0].options.top_k, defaults.top_k);
   EXPECT_EQ(variants[0].options.top_k, 10);
+  for (size_t i = 0; i < 5; ++i) {
+    EXPECT_EQ(variants[i].options.retrieval, RetrievalMode::kGlobal) << variants[i].name;
+  }
+  EXPECT_EQ(variants[5].options.retrieval, RetrievalMode::kGlobalThenVotes);
+  EXPECT_EQ(variants[5].options.retrieval, defaults.retrieval);
   EXPECT_TRUE(variants[0].options.visibility_filter);
   EXPECT_FALSE(variants[0].options.visibility_masked_decoding);
   EXPECT_EQ(variants[1].options.top_k, 1);

@@ -39,10 +39,32 @@ std::string CandidateSearchName(CandidateSearch search) {
   return search == CandidateSearch::kAll ? "all" : "until-accepted";
 }
 
+RetrievalMode ParseRetrievalMode(const std::string& name) {
+  if (name == "global") return RetrievalMode::kGlobal;
+  if (name == "global-then-votes") return RetrievalMode::kGlobalThenVotes;
+  if (name == "votes") return RetrievalMode::kVotes;
+  ThrowInvalidArgument("unknown retrieval '{}' (global, global-then-votes, votes)", name);
+}
+
+std::string RetrievalModeName(RetrievalMode mode) {
+  switch (mode) {
+    case RetrievalMode::kGlobal:
+      return "global";
+    case RetrievalMode::kGlobalThenVotes:
+      return "global-then-votes";
+    case RetrievalMode::kVotes:
+      return "votes";
+  }
+  return "unknown";
+}
+
 void LocalizerOptions::Check() const {
   THROW_CHECK_MSG(top_k >= 1 && top_k <= 1000, "LocalizerOptions.top_k = {} (1 .. 1000)", top_k);
   THROW_CHECK_MSG(accept_candidate_inliers >= 1, "LocalizerOptions.accept_candidate_inliers = {}",
                   accept_candidate_inliers);
+  THROW_CHECK_MSG(vote_retrieval_below_inliers >= 0,
+                  "LocalizerOptions.vote_retrieval_below_inliers = {}",
+                  vote_retrieval_below_inliers);
   nearest_neighbor.Check();
   pose.Check();
 }
@@ -69,6 +91,9 @@ Localizer::Localizer(std::shared_ptr<const LocalizationMap> map,
   if (scene.NumObservations() > 0) {
     nearest_neighbor_ = std::make_shared<const NearestNeighborMatcher>(scene);
   }
+  if (network_ != nullptr) {
+    point_votes_ = std::make_shared<const PointVoteIndex>(map_->visibility());
+  }
   CheckOptionsFit(options_);
 }
 
@@ -76,7 +101,8 @@ Localizer Localizer::FromBundle(const std::filesystem::path& bundle_dir,
                                 const LocalizerOptions& options, ComputeDevice device) {
   auto map = LocalizationMap::Load(
       bundle_dir, {.load_observations = options.matcher == Matcher::kNearestNeighbor,
-                   .load_network = options.matcher == Matcher::kNetwork,
+                   .load_network = options.matcher == Matcher::kNetwork ||
+                                   options.retrieval != RetrievalMode::kGlobal,
                    .device = device});
   std::shared_ptr<const Network> network = map->network();
   return Localizer(std::move(map), std::move(network), options);
@@ -86,6 +112,10 @@ void Localizer::CheckOptionsFit(const LocalizerOptions& options) const {
   options.Check();
   if (options.matcher == Matcher::kNetwork && network_ == nullptr) {
     ThrowInvalidArgument("{}: the hsc matcher needs a trained network (run `hscloc train`)",
+                         map_->dir().string());
+  }
+  if (options.retrieval == RetrievalMode::kVotes && network_ == nullptr) {
+    ThrowInvalidArgument("{}: retrieval by votes needs a trained network (run `hscloc train`)",
                          map_->dir().string());
   }
   if (options.matcher == Matcher::kNearestNeighbor && nearest_neighbor_ == nullptr) {
@@ -156,6 +186,45 @@ std::vector<LocalizationCandidate> Localizer::Retrieve(const LocalizationQuery& 
     LocalizationCandidate candidate;
     candidate.image_index = static_cast<uint32_t>(hit.image_index);
     candidate.image_id = map_->scene().images[candidate.image_index].image_id;
+    candidate.retrieval_score = hit.score;
+    candidates.push_back(candidate);
+  }
+  return candidates;
+}
+
+bool Localizer::UsesVotes(const LocalizerOptions& options) const {
+  return options.retrieval != RetrievalMode::kGlobal && network_ != nullptr;
+}
+
+std::vector<LocalizationCandidate> Localizer::RetrieveByVotes(
+    const LocalizationQuery& query, const LocalizerOptions& options,
+    const std::vector<LocalizationCandidate>& tried) const {
+  std::vector<LocalizationCandidate> candidates;
+  const int64_t num_keypoints = query.descriptors.rows();
+  if (num_keypoints == 0) return candidates;
+  // Without an image id the network ranks every point of the map (a network trained with image
+  // dropout has learned to), and each prediction votes as much as the network is sure of it.
+  const PointPredictions predictions =
+      network_->Predict(query.descriptors, {network_->NoImageIndex()}, map_->label_tree());
+  std::vector<int64_t> points(num_keypoints);
+  std::vector<float> weights(num_keypoints);
+  for (int64_t keypoint = 0; keypoint < num_keypoints; ++keypoint) {
+    points[keypoint] = predictions.point_indices(0, keypoint);
+    weights[keypoint] = predictions.confidences(0, keypoint);
+  }
+  const std::vector<RetrievalHit> hits =
+      point_votes_->Search(points, weights, options.top_k + static_cast<int>(tried.size()));
+  for (const RetrievalHit& hit : hits) {
+    if (static_cast<int>(candidates.size()) == options.top_k) break;
+    const bool already_tried =
+        std::any_of(tried.begin(), tried.end(), [&](const LocalizationCandidate& candidate) {
+          return candidate.image_index == hit.image_index;
+        });
+    if (already_tried) continue;
+    LocalizationCandidate candidate;
+    candidate.image_index = hit.image_index;
+    candidate.image_id = map_->scene().images[hit.image_index].image_id;
+    candidate.source = CandidateSource::kPointVotes;
     candidate.retrieval_score = hit.score;
     candidates.push_back(candidate);
   }
@@ -271,6 +340,24 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
   }
 }
 
+void Localizer::EvaluateRound(const LocalizationQuery& query, const LocalizerOptions& options,
+                              size_t begin, Evaluation& evaluation) const {
+  const size_t end = evaluation.result.candidates.size();
+  evaluation.matches.resize(end);
+  evaluation.inlier_masks.resize(end);
+  if (begin >= end) return;
+  if (options.candidate_search == CandidateSearch::kAll) {
+    EvaluateCandidates(query, options, begin, end, /*stop_when_accepted=*/false, evaluation);
+    return;
+  }
+  // The first candidate alone: when retrieval is right it settles the query, and the network
+  // runs on one image id instead of K. The rest follow as one batch only when it does not.
+  EvaluateCandidates(query, options, begin, begin + 1, /*stop_when_accepted=*/false, evaluation);
+  if (evaluation.result.candidates[begin].num_inliers < options.accept_candidate_inliers) {
+    EvaluateCandidates(query, options, begin + 1, end, /*stop_when_accepted=*/true, evaluation);
+  }
+}
+
 PoseResult Localizer::Localize(const LocalizationQuery& query,
                                const LocalizerOptions& options) const {
   CheckOptionsFit(options);
@@ -278,12 +365,12 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   const Timer total_timer;
   Evaluation evaluation;
   PoseResult& result = evaluation.result;
+  const bool votes_only = options.retrieval == RetrievalMode::kVotes;
   {
     ScopedTimer timer(&result.timings.retrieval_ms);
-    result.candidates = Retrieve(query, options);
+    result.candidates = votes_only ? RetrieveByVotes(query, options, {}) : Retrieve(query, options);
   }
-  const size_t num_candidates = result.candidates.size();
-  if (num_candidates > 0) {
+  if (!result.candidates.empty()) {
     result.cam_from_world =
         map_->scene().images[result.candidates.front().image_index].cam_from_world;
   }
@@ -292,22 +379,28 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
     return Finish(std::move(result), fmt::format("the query has {} keypoints", num_keypoints),
                   total_timer);
   }
+  EvaluateRound(query, options, 0, evaluation);
+
+  const auto weak = [&] {
+    const int best = Choose(result.candidates);
+    return best < 0 || result.candidates[best].num_inliers < options.vote_retrieval_below_inliers;
+  };
+  if (!votes_only && UsesVotes(options) && weak()) {
+    const size_t first_voted = result.candidates.size();
+    {
+      ScopedTimer timer(&result.timings.retrieval_ms);
+      std::vector<LocalizationCandidate> voted = RetrieveByVotes(query, options, result.candidates);
+      result.candidates.insert(result.candidates.end(), voted.begin(), voted.end());
+    }
+    if (first_voted == 0 && !result.candidates.empty()) {
+      result.cam_from_world =
+          map_->scene().images[result.candidates.front().image_index].cam_from_world;
+    }
+    EvaluateRound(query, options, first_voted, evaluation);
+  }
+  const size_t num_candidates = result.candidates.size();
   if (num_candidates == 0) {
     return Finish(std::move(result), "retrieval found no database image", total_timer);
-  }
-
-  evaluation.matches.resize(num_candidates);
-  evaluation.inlier_masks.resize(num_candidates);
-  if (options.candidate_search == CandidateSearch::kAll) {
-    EvaluateCandidates(query, options, 0, num_candidates, /*stop_when_accepted=*/false, evaluation);
-  } else {
-    // The first candidate alone: when retrieval is right it settles the query, and the network
-    // runs on one image id instead of K. The rest follow as one batch only when it does not.
-    EvaluateCandidates(query, options, 0, 1, /*stop_when_accepted=*/false, evaluation);
-    if (result.candidates[0].num_inliers < options.accept_candidate_inliers) {
-      EvaluateCandidates(query, options, 1, num_candidates, /*stop_when_accepted=*/true,
-                         evaluation);
-    }
   }
 
   result.best_candidate = Choose(result.candidates);

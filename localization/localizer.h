@@ -1,7 +1,10 @@
 // The localization pipeline of the "Aachen hybrid" of Li et al., CVPR 2020, for one query, as
 // named stages that data flows through in order:
 //   Retrieve       the query's global descriptor (VLAD of its local descriptors, or the one it
-//                  brings) -> the top-K database images of the map's index, the candidates
+//                  brings) -> the top-K database images of the map's index, the candidates;
+//                  when none of them yields a pose (RetrievalMode::kGlobalThenVotes), a second
+//                  round: the network's predictions without an image id vote for the images
+//                  that observe the predicted points, and their top-K not yet tried follow
 //   Match          the hierarchical classification network predicts, for each keypoint and each
 //                  candidate, the 3D point it sees (the descriptor-only layers once, the K image
 //                  ids as one batch); or, as the explicit-matching baseline, mutual nearest
@@ -25,6 +28,7 @@
 #include "localization/stage_timings.h"
 #include "model/network.h"
 #include "pose/absolute_pose.h"
+#include "retrieval/point_votes.h"
 #include "scene/features.h"
 
 namespace hscloc {
@@ -39,6 +43,19 @@ enum class CandidateSearch {
 CandidateSearch ParseCandidateSearch(const std::string& name);
 std::string CandidateSearchName(CandidateSearch search);
 
+// Where the candidates come from (docs/decisions.md: "Retrieval by point votes").
+enum class RetrievalMode {
+  kGlobal,  // the global descriptor alone (the paper)
+  // The global descriptor first; when its best candidate has fewer than
+  // vote_retrieval_below_inliers inliers, the network's votes add up to top_k candidates more.
+  // Without a network in the Localizer it is kGlobal.
+  kGlobalThenVotes,
+  kVotes,  // the network's votes alone, for every query (needs the network)
+};
+// "global", "global-then-votes" or "votes"; throws std::invalid_argument otherwise.
+RetrievalMode ParseRetrievalMode(const std::string& name);
+std::string RetrievalModeName(RetrievalMode mode);
+
 enum class Matcher {
   kNetwork,          // the hierarchical scene coordinate classification network ("hsc")
   kNearestNeighbor,  // mutual nearest neighbours + ratio test against the image's observations
@@ -50,8 +67,12 @@ std::string MatcherName(Matcher matcher);
 
 struct LocalizerOptions {
   Matcher matcher = Matcher::kNetwork;
-  // Retrieved database images, each a pose candidate (the paper: 10).
+  // Retrieved database images, each a pose candidate (the paper: 10), per retrieval round.
   int top_k = 10;
+  RetrievalMode retrieval = RetrievalMode::kGlobalThenVotes;
+  // kGlobalThenVotes: a best candidate with fewer inliers than this calls for the votes' round,
+  // as does a first round without any pose (even at 0).
+  int vote_retrieval_below_inliers = 30;
   // Drop matches to points the candidate image does not observe.
   bool visibility_filter = true;
   // Condition the network on the candidate's image id; off, it sees the "no image" id (an
@@ -80,13 +101,19 @@ struct LocalizationQuery {
   std::optional<Eigen::VectorXf> global_descriptor;
 };
 
+enum class CandidateSource {
+  kGlobalDescriptor,
+  kPointVotes,
+};
+
 // One retrieved database image and the pose estimated against it.
 struct LocalizationCandidate {
   uint32_t image_index = 0;  // dense index in the map's scene
   image_t image_id = kInvalidImageId;
-  float retrieval_score = 0;
-  bool evaluated = false;  // false when an early exit skipped it
-  int num_matches = 0;     // after the visibility filter
+  CandidateSource source = CandidateSource::kGlobalDescriptor;
+  float retrieval_score = 0;  // cosine of global descriptors, or summed vote confidences
+  bool evaluated = false;     // false when an early exit skipped it
+  int num_matches = 0;        // after the visibility filter
   int num_inliers = 0;
   bool pose_found = false;
   Rigid3d cam_from_world;
@@ -116,7 +143,8 @@ class Localizer {
   Localizer(std::shared_ptr<const LocalizationMap> map, std::shared_ptr<const Network> network,
             const LocalizerOptions& options = {});
 
-  // Loads the bundle (with observations when the matcher needs them) and its network.
+  // Loads the bundle (with observations when the matcher needs them) and its network (when the
+  // matcher or the retrieval uses it and the bundle has one).
   static Localizer FromBundle(const std::filesystem::path& bundle_dir,
                               const LocalizerOptions& options = {},
                               ComputeDevice device = ComputeDevice::kCpu);
@@ -142,6 +170,12 @@ class Localizer {
   // The stages (see the top of this file).
   std::vector<LocalizationCandidate> Retrieve(const LocalizationQuery& query,
                                               const LocalizerOptions& options) const;
+  // The top_k images the network's votes rank highest, except those in `tried`.
+  std::vector<LocalizationCandidate> RetrieveByVotes(
+      const LocalizationQuery& query, const LocalizerOptions& options,
+      const std::vector<LocalizationCandidate>& tried) const;
+  // Whether the query's retrieval has a votes round: always, after a weak first one, or never.
+  bool UsesVotes(const LocalizerOptions& options) const;
   // The matches of candidates [begin, end), one entry each.
   std::vector<CandidateMatches> Match(const LocalizationQuery& query,
                                       const std::vector<LocalizationCandidate>& candidates,
@@ -150,6 +184,9 @@ class Localizer {
   CandidateMatches FilterVisible(uint32_t image_index, CandidateMatches matches) const;
   AbsolutePoseResult Pose(const LocalizationQuery& query, const CandidateMatches& matches,
                           const LocalizerOptions& options) const;
+  // The candidates of one retrieval round evaluated as the options' candidate search says.
+  void EvaluateRound(const LocalizationQuery& query, const LocalizerOptions& options, size_t begin,
+                     Evaluation& evaluation) const;
   // Match, FilterVisible and Pose for candidates [begin, end) of the evaluation; with
   // `stop_when_accepted`, posing stops at the first candidate with accept_candidate_inliers.
   void EvaluateCandidates(const LocalizationQuery& query, const LocalizerOptions& options,
@@ -163,6 +200,8 @@ class Localizer {
   LocalizerOptions options_;
   // Prepared once, when the map has observations.
   std::shared_ptr<const NearestNeighborMatcher> nearest_neighbor_;
+  // Built when the network is there to vote.
+  std::shared_ptr<const PointVoteIndex> point_votes_;
 };
 
 }  // namespace hscloc

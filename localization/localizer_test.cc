@@ -6,6 +6,7 @@
 
 #include <iostream>
 #include <map>
+#include <set>
 #include <thread>
 
 #include "localization/ablation.h"
@@ -361,6 +362,121 @@ TEST_F(SmallCityLocalizerTest, MalformedQueriesAreRejectedWithTheirReason) {
   EXPECT_THAT(result.failure_reason, HasSubstr("0 keypoints"));
 }
 
+// A global descriptor that points retrieval at the far side of the city: the database image
+// farthest from the query's true position lends its descriptor.
+Eigen::VectorXf MisleadingGlobalDescriptor(const LocalizationMap& map, const Rigid3d& truth) {
+  const Eigen::Vector3d position = truth.Inverse().translation;
+  size_t farthest = 0;
+  double farthest_distance = -1;
+  for (size_t i = 0; i < map.scene().NumImages(); ++i) {
+    const double distance =
+        (map.scene().images[i].cam_from_world.Inverse().translation - position).norm();
+    if (distance > farthest_distance) {
+      farthest_distance = distance;
+      farthest = i;
+    }
+  }
+  return map.global_descriptors().row(static_cast<int64_t>(farthest)).transpose();
+}
+
+bool WithinQuarterMetreAndTwoDegrees(const NamedPose& truth, const PoseResult& result) {
+  if (!result.success) return false;
+  const std::vector<QueryPoseError> errors =
+      ComputePoseErrors({truth}, {{truth.name, result.cam_from_world}});
+  return errors.size() == 1 && errors[0].position < 0.25 && errors[0].rotation_deg < 2;
+}
+
+TEST_F(SmallCityLocalizerTest, PointVotesRecoverQueriesThatRetrievalSendsAstray) {
+  const QuerySet& set = Set("day");
+  LocalizerOptions global_only;
+  global_only.retrieval = RetrievalMode::kGlobal;
+  int recovered = 0;
+  int astray_within = 0;
+  const size_t count = std::min<size_t>(set.queries.size(), 8);
+  for (size_t q = 0; q < count; ++q) {
+    SCOPED_TRACE(set.queries[q].name);
+    LocalizationQuery query = set.queries[q];
+    query.global_descriptor =
+        MisleadingGlobalDescriptor(localizer().map(), set.ground_truth[q].cam_from_world);
+    const PoseResult astray = localizer().Localize(query, global_only);
+    ASSERT_EQ(astray.candidates.size(), 10u);
+
+    const PoseResult result = localizer().Localize(query);
+    ASSERT_EQ(result.candidates.size(), 20u) << "the first round was weak: votes add 10 more";
+    std::set<uint32_t> images;
+    for (size_t k = 0; k < result.candidates.size(); ++k) {
+      const LocalizationCandidate& candidate = result.candidates[k];
+      EXPECT_EQ(candidate.source,
+                k < 10 ? CandidateSource::kGlobalDescriptor : CandidateSource::kPointVotes);
+      EXPECT_TRUE(candidate.evaluated);
+      images.insert(candidate.image_index);
+    }
+    EXPECT_EQ(images.size(), 20u) << "no image is tried twice";
+    for (size_t k = 11; k < 20; ++k) {
+      EXPECT_LE(result.candidates[k].retrieval_score, result.candidates[k - 1].retrieval_score);
+    }
+    ASSERT_TRUE(result.success) << result.failure_reason;
+    EXPECT_EQ(result.candidates[result.best_candidate].source, CandidateSource::kPointVotes);
+    recovered += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], result);
+    astray_within += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], astray);
+  }
+  EXPECT_EQ(astray_within, 0) << "the misleading descriptor must mislead for the test to mean "
+                                 "anything";
+  EXPECT_EQ(recovered, static_cast<int>(count));
+}
+
+TEST_F(SmallCityLocalizerTest, TheVotesRoundFollowsOnlyAFirstRoundBelowTheThreshold) {
+  const LocalizationQuery& query = Set("day").queries.front();
+  LocalizerOptions global_only;
+  global_only.retrieval = RetrievalMode::kGlobal;
+  const PoseResult first_round = localizer().Localize(query, global_only);
+  ASSERT_TRUE(first_round.success) << first_round.failure_reason;
+  const auto candidates_with_threshold = [&](int threshold) {
+    LocalizerOptions options;
+    options.vote_retrieval_below_inliers = threshold;
+    return localizer().Localize(query, options).candidates.size();
+  };
+  EXPECT_EQ(candidates_with_threshold(first_round.num_inliers), 10u);
+  EXPECT_EQ(candidates_with_threshold(first_round.num_inliers + 1), 20u);
+  EXPECT_EQ(candidates_with_threshold(0), 10u);
+}
+
+TEST_F(SmallCityLocalizerTest, VotesAloneRetrieveAsWellAsTheGlobalDescriptor) {
+  LocalizerOptions global_only;
+  global_only.retrieval = RetrievalMode::kGlobal;
+  LocalizerOptions votes_only;
+  votes_only.retrieval = RetrievalMode::kVotes;
+  for (const char* condition : {"day", "night"}) {
+    SCOPED_TRACE(condition);
+    const RunSummary global = LocalizeAll(localizer(), global_only, Set(condition), condition);
+    const RunSummary votes = LocalizeAll(localizer(), votes_only, Set(condition), condition);
+    std::cout << fmt::format("{}: within (0.25 m, 2 deg) global {:.0f} %, votes {:.0f} %\n",
+                             condition, 100 * global.accuracy.localized_fraction[0],
+                             100 * votes.accuracy.localized_fraction[0]);
+    EXPECT_GE(votes.accuracy.localized_fraction[0], global.accuracy.localized_fraction[0] - 0.04);
+    for (const PoseResult& result : votes.results) {
+      EXPECT_LE(result.candidates.size(), 10u);
+      for (const LocalizationCandidate& candidate : result.candidates) {
+        EXPECT_EQ(candidate.source, CandidateSource::kPointVotes);
+        EXPECT_GT(candidate.retrieval_score, 0);
+      }
+    }
+  }
+}
+
+TEST(LocalizerTest, RetrievalModeNamesRoundTrip) {
+  for (const RetrievalMode mode :
+       {RetrievalMode::kGlobal, RetrievalMode::kGlobalThenVotes, RetrievalMode::kVotes}) {
+    EXPECT_EQ(ParseRetrievalMode(RetrievalModeName(mode)), mode);
+  }
+  EXPECT_THAT(testing::InvalidArgumentMessage([] { ParseRetrievalMode("netvlad"); }),
+              HasSubstr("'netvlad'"));
+  LocalizerOptions options;
+  options.vote_retrieval_below_inliers = -1;
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { options.Check(); }),
+              HasSubstr("vote_retrieval_below_inliers"));
+}
+
 TEST(LocalizationMapTest, LoadsTheNetworkWithTheMapFromOneOpening) {
   HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
   const auto map = LocalizationMap::Load(dir / "map");
@@ -368,13 +484,18 @@ TEST(LocalizationMapTest, LoadsTheNetworkWithTheMapFromOneOpening) {
   EXPECT_TRUE(map->network()->HasSameWeights(Network::FromBundle(MapBundle::Open(dir / "map"))));
   EXPECT_EQ(map->network()->shape().num_images, static_cast<int>(map->scene().NumImages()));
   EXPECT_EQ(LocalizationMap::Load(dir / "map", {.load_network = false})->network(), nullptr);
-  // The nearest-neighbour baseline needs no network and loads none.
-  const Localizer baseline = Localizer::FromBundle(dir / "map", [] {
-    LocalizerOptions options;
-    options.matcher = Matcher::kNearestNeighbor;
-    return options;
-  }());
+  // The nearest-neighbour baseline needs the network only to vote in retrieval.
+  LocalizerOptions baseline_options;
+  baseline_options.matcher = Matcher::kNearestNeighbor;
+  EXPECT_NE(Localizer::FromBundle(dir / "map", baseline_options).network(), nullptr);
+  baseline_options.retrieval = RetrievalMode::kGlobal;
+  const Localizer baseline = Localizer::FromBundle(dir / "map", baseline_options);
   EXPECT_EQ(baseline.network(), nullptr);
+  // Without one, votes are asked for in vain, and the default retrieval is the global one.
+  baseline_options.retrieval = RetrievalMode::kVotes;
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { baseline.Localize(LocalizationQuery(), baseline_options); }),
+              HasSubstr("retrieval by votes needs a trained network"));
 }
 
 TEST(LocalizerTest, MatcherNamesRoundTrip) {

@@ -166,6 +166,13 @@ QueryListRunSummary RunQueryList(const Localizer& localizer,
         writer.Write(ImageBasename(entry.name), result);
         ++(result.success ? summary.num_localized : summary.num_failed);
         summary.timings.Add(result.timings);
+        const auto voted = [](const LocalizationCandidate& candidate) {
+          return candidate.source == CandidateSource::kPointVotes;
+        };
+        summary.num_with_votes +=
+            std::any_of(result.candidates.begin(), result.candidates.end(), voted);
+        summary.num_won_by_votes +=
+            result.success && voted(result.candidates[result.best_candidate]);
         progress.SetStatus(
             fmt::format("{} localized, {} failed", summary.num_localized, summary.num_failed));
         progress.Advance();

@@ -47,7 +47,9 @@ struct QueryListRunSummary {
   size_t num_queries = 0;  // in the lists
   size_t num_skipped = 0;  // already in `out` when resuming
   size_t num_localized = 0;
-  size_t num_failed = 0;  // still written (the top-1 retrieved image's pose), and listed
+  size_t num_failed = 0;        // still written (the top-1 retrieved image's pose), and listed
+  size_t num_with_votes = 0;    // queries that had a round of retrieval by point votes
+  size_t num_won_by_votes = 0;  // localized queries whose winning candidate came from the votes
   std::filesystem::path failures_path;
   int num_threads = 0;
   double seconds = 0;

@@ -162,6 +162,8 @@ void PoseResultToWire(const PoseResult& result, const Scene& scene,
     out->set_num_matches(static_cast<uint32_t>(candidate.num_matches));
     out->set_num_inliers(static_cast<uint32_t>(candidate.num_inliers));
     out->set_evaluated(candidate.evaluated);
+    out->set_source(candidate.source == CandidateSource::kPointVotes ? wire::POINT_VOTES
+                                                                     : wire::GLOBAL_DESCRIPTOR);
   }
   wire::StageTimings* timings = response->mutable_timings();
   timings->set_retrieval_ms(result.timings.retrieval_ms);

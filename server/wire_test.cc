@@ -114,5 +114,30 @@ TEST(WireTest, EveryInconsistentFieldIsNamed) {
               HasSubstr("top_k = 1000"));
 }
 
+TEST(WireTest, CandidatesCarryTheirRetrievalSource) {
+  Scene scene;
+  for (const char* name : {"a.jpg", "b.jpg"}) {
+    SceneImage image;
+    image.image_id = static_cast<image_t>(scene.images.size() + 1);
+    image.name = name;
+    scene.images.push_back(image);
+  }
+  PoseResult result;
+  result.candidates.resize(2);
+  result.candidates[0].image_index = 0;
+  result.candidates[0].image_id = 1;
+  result.candidates[1].image_index = 1;
+  result.candidates[1].image_id = 2;
+  result.candidates[1].source = CandidateSource::kPointVotes;
+  result.candidates[1].retrieval_score = 7.5f;
+  wire::LocalizeResponse response;
+  PoseResultToWire(result, scene, &response);
+  ASSERT_EQ(response.candidates_size(), 2);
+  EXPECT_EQ(response.candidates(0).source(), wire::GLOBAL_DESCRIPTOR);
+  EXPECT_EQ(response.candidates(1).source(), wire::POINT_VOTES);
+  EXPECT_EQ(response.candidates(1).image_name(), "b.jpg");
+  EXPECT_FLOAT_EQ(response.candidates(1).retrieval_score(), 7.5f);
+}
+
 }  // namespace
 }  // namespace hscloc

@@ -25,6 +25,7 @@ struct LocalizeArguments {
   std::string global_features;
   std::string matcher = "hsc";
   std::string candidate_search = "all";
+  std::string retrieval = RetrievalModeName(LocalizerOptions().retrieval);
   std::string device = "cpu";
   bool no_visibility_filter = false;
   bool no_image_id = false;
@@ -36,6 +37,7 @@ int RunLocalize(LocalizeArguments& arguments) {
   LocalizerOptions& options = arguments.options;
   options.matcher = ParseMatcher(arguments.matcher);
   options.candidate_search = ParseCandidateSearch(arguments.candidate_search);
+  options.retrieval = ParseRetrievalMode(arguments.retrieval);
   options.visibility_filter = !arguments.no_visibility_filter;
   options.use_image_id = !arguments.no_image_id;
   options.Check();
@@ -68,12 +70,14 @@ int RunLocalize(LocalizeArguments& arguments) {
       "localized {} of {} queries ({} failed, listed in {}) in {}, {} threads, matcher {}\n"
       "per query (ms): retrieval {:.1f}, match {:.1f}, visibility {:.1f}, pose {:.1f}; total mean "
       "{:.1f}, p50 {:.1f}, p95 {:.1f}\n"
+      "retrieval {}: {} queries had a round of point votes, {} were localized by it\n"
       "submission: {}\n",
       summary.num_localized, summary.num_queries - summary.num_skipped, summary.num_failed,
       summary.failures_path.string(), FormatDuration(summary.seconds), summary.num_threads,
       MatcherName(options.matcher), mean.retrieval_ms, mean.match_ms, mean.visibility_ms,
       mean.pose_ms, mean.total_ms, summary.timings.TotalPercentileMs(0.5),
-      summary.timings.TotalPercentileMs(0.95), arguments.run.out.string());
+      summary.timings.TotalPercentileMs(0.95), RetrievalModeName(localizer.options().retrieval),
+      summary.num_with_votes, summary.num_won_by_votes, arguments.run.out.string());
   return 0;
 }
 
@@ -105,6 +109,19 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->check(CLI::IsMember({"hsc", "nn"}))
       ->capture_default_str();
   command->add_option("--top-k", options.top_k, "Retrieved database images")->capture_default_str();
+  command
+      ->add_option("--retrieval", arguments->retrieval,
+                   "global: the global descriptor (VLAD) alone (the paper); global-then-votes: "
+                   "when its candidates yield no pose with --vote-below-inliers, the network's "
+                   "votes for the images observing its predicted points add --top-k more; "
+                   "votes: the votes alone")
+      ->check(CLI::IsMember({"global", "global-then-votes", "votes"}))
+      ->capture_default_str();
+  command
+      ->add_option("--vote-below-inliers", options.vote_retrieval_below_inliers,
+                   "global-then-votes: inliers of the best candidate below which the votes' round "
+                   "runs")
+      ->capture_default_str();
   command->add_flag("--no-visibility-filter", arguments->no_visibility_filter,
                     "Keep matches to points the retrieved image does not see");
   command->add_flag("--no-image-id", arguments->no_image_id,

@@ -22,6 +22,7 @@ struct ServeArguments {
   std::string backend = "tcp://*:5556";
   std::string map_dir;
   std::string matcher = "hsc";
+  std::string retrieval = RetrievalModeName(LocalizerOptions().retrieval);
   // Key files (hscloc keygen): secret keys hold one key, lists one public key per line.
   std::string curve_secret_key_file;
   std::string curve_allowed_keys_file;
@@ -128,6 +129,7 @@ int RunServe(ServeArguments& arguments) {
   if (arguments.broker) return RunBroker(arguments);
   ServiceOptions& options = arguments.options;
   options.localizer.matcher = ParseMatcher(arguments.matcher);
+  options.localizer.retrieval = ParseRetrievalMode(arguments.retrieval);
   options.curve_secret_key = ReadOptionalKey(arguments.curve_secret_key_file);
   options.curve_server_key = ReadOptionalKey(arguments.curve_server_key_file);
   options.curve_allowed_client_keys = ReadKeyList(arguments.curve_allowed_keys_file);
@@ -199,6 +201,12 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
       ->check(CLI::IsMember({"hsc", "nn"}))
       ->capture_default_str();
   command->add_option("--top-k", options.localizer.top_k, "Retrieved images per query")
+      ->capture_default_str();
+  command
+      ->add_option("--retrieval", arguments->retrieval,
+                   "global (VLAD alone), global-then-votes (the network's point votes when VLAD's "
+                   "candidates yield no pose) or votes")
+      ->check(CLI::IsMember({"global", "global-then-votes", "votes"}))
       ->capture_default_str();
   command->add_option("--curve-secret-key", arguments->curve_secret_key_file,
                       "File with this process's CURVE secret key (hscloc keygen): a server's or "

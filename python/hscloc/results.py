@@ -78,10 +78,13 @@ class Candidate:
     num_matches: int
     num_inliers: int
     evaluated: bool
+    source: str  # "GLOBAL_DESCRIPTOR" (VLAD) or "POINT_VOTES" (the network's votes)
 
     @classmethod
     def from_wire(cls, candidate: pb.Candidate) -> "Candidate":
-        return _from_same_names(cls, candidate)
+        values = {f.name: getattr(candidate, f.name) for f in fields(cls)}
+        values["source"] = pb.CandidateSource.Name(candidate.source)
+        return cls(**values)
 
 
 @dataclass(frozen=True)

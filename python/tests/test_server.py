@@ -86,6 +86,10 @@ def test_a_result_holds_pose_inliers_candidates_and_timings(server: str, city: C
     assert (result.retrieved_image_id, result.retrieved_image_name) == (best.image_id,
                                                                         best.image_name)
     assert best.num_inliers == result.num_inliers
+    # The global descriptor's candidates come first; the network's votes follow only after them.
+    sources = [c.source for c in result.candidates]
+    assert sources[0] == "GLOBAL_DESCRIPTOR"
+    assert sources == sorted(sources, key=["GLOBAL_DESCRIPTOR", "POINT_VOTES"].index)
     timings = result.timings
     assert min(timings.retrieval_ms, timings.match_ms, timings.pose_ms) > 0
     assert timings.server_ms >= timings.total_ms > 0
