@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <unordered_map>
 #include <utility>
 
 #include "util/check.h"
@@ -257,9 +258,27 @@ std::vector<CandidateMatches> Localizer::Match(const LocalizationQuery& query,
       query.descriptors, images, map_->label_tree(), masked ? &map_->visibility() : nullptr);
   for (size_t k = begin; k < end; ++k) {
     const int64_t row = options.use_image_id ? static_cast<int64_t>(k - begin) : 0;
+    // The most confident keypoint of each predicted point, when a point takes one keypoint only.
+    std::unordered_map<int64_t, int64_t> keypoint_of_point;
     for (int64_t keypoint = 0; keypoint < query.descriptors.rows(); ++keypoint) {
       const int64_t point = predictions.point_indices(row, keypoint);
       if (point < 0) continue;
+      if (options.one_keypoint_per_point) {
+        const float confidence = predictions.confidences(row, keypoint);
+        auto [it, inserted] = keypoint_of_point.emplace(point, keypoint);
+        if (!inserted && predictions.confidences(row, it->second) < confidence) {
+          it->second = keypoint;
+        }
+        continue;
+      }
+      matches[k - begin].keypoints.push_back(static_cast<int>(keypoint));
+      matches[k - begin].point_indices.push_back(static_cast<uint32_t>(point));
+    }
+    // In keypoint order, as without the rule, so that RANSAC's samples do not follow the hash.
+    std::vector<std::pair<int64_t, int64_t>> kept;
+    for (const auto& [point, keypoint] : keypoint_of_point) kept.emplace_back(keypoint, point);
+    std::sort(kept.begin(), kept.end());
+    for (const auto& [keypoint, point] : kept) {
       matches[k - begin].keypoints.push_back(static_cast<int>(keypoint));
       matches[k - begin].point_indices.push_back(static_cast<uint32_t>(point));
     }

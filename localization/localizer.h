@@ -81,6 +81,10 @@ struct LocalizerOptions {
   // Restrict the network's choices at each level to subtrees the candidate image observes. A
   // network trained for it (NetworkOptions::masked_decoding) is always decoded so.
   bool visibility_masked_decoding = false;
+  // Of the keypoints the network sends to one point, keep only the most confident (its confidence:
+  // the product of the chosen labels' probabilities), since a point is seen once in an image; off,
+  // every prediction is a match (the paper).
+  bool one_keypoint_per_point = true;
   CandidateSearch candidate_search = CandidateSearch::kAll;
   // Inliers with which kUntilAccepted accepts a candidate and stops.
   int accept_candidate_inliers = 100;

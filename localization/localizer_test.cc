@@ -441,6 +441,49 @@ TEST_F(SmallCityLocalizerTest, TheVotesRoundFollowsOnlyAFirstRoundBelowTheThresh
   EXPECT_EQ(candidates_with_threshold(0), 10u);
 }
 
+TEST_F(SmallCityLocalizerTest, EachPredictedPointKeepsItsMostConfidentKeypoint) {
+  const Network& network = *localizer().network();
+  const bool masked = network.options().masked_decoding;
+  LocalizerOptions every_keypoint;
+  every_keypoint.one_keypoint_per_point = false;
+  size_t repeated_points = 0;
+  size_t checked = 0;
+  for (const LocalizationQuery& query : Set("night").queries) {
+    SCOPED_TRACE(query.name);
+    const PoseResult result = localizer().Localize(query);
+    if (!result.success) continue;
+    ++checked;
+    const uint32_t image = result.candidates[result.best_candidate].image_index;
+    const PointPredictions predictions =
+        network.Predict(query.descriptors, {image}, localizer().map().label_tree(),
+                        masked ? &localizer().map().visibility() : nullptr);
+    // Per point the network predicted in this image (and the image observes), its most
+    // confident keypoint.
+    std::map<uint32_t, std::pair<float, int>> best_keypoint;
+    for (int keypoint = 0; keypoint < predictions.num_descriptors; ++keypoint) {
+      const int64_t point = predictions.point_indices(0, keypoint);
+      if (point < 0 || !localizer().map().visibility().IsVisible(image, point)) continue;
+      const float confidence = predictions.confidences(0, keypoint);
+      auto [it, inserted] = best_keypoint.emplace(point, std::make_pair(confidence, keypoint));
+      if (!inserted && confidence > it->second.first) it->second = {confidence, keypoint};
+    }
+    ASSERT_EQ(result.match_points.size(), best_keypoint.size());
+    for (size_t i = 0; i < result.match_points.size(); ++i) {
+      const auto found = best_keypoint.find(result.match_points[i]);
+      ASSERT_NE(found, best_keypoint.end());
+      EXPECT_FLOAT_EQ(predictions.confidences(0, result.match_keypoints[i]), found->second.first);
+    }
+    const PoseResult all = localizer().Localize(query, every_keypoint);
+    if (all.success) {
+      const std::set<uint32_t> distinct(all.match_points.begin(), all.match_points.end());
+      repeated_points += all.match_points.size() - distinct.size();
+    }
+  }
+  EXPECT_GE(checked, Set("night").queries.size() * 8 / 10);
+  // Clutter keypoints land on points that real detections already predict: the switch matters.
+  EXPECT_GT(repeated_points, 0u);
+}
+
 TEST_F(SmallCityLocalizerTest, VotesAloneRetrieveAsWellAsTheGlobalDescriptor) {
   LocalizerOptions global_only;
   global_only.retrieval = RetrievalMode::kGlobal;

@@ -116,11 +116,12 @@ TEST(XFeatRealDataTest, FountainQueriesWithinQuarterMetreAndTwoDegrees) {
   ExpectFineQueries("fountain-P11", 2, 2);
 }
 
-// Lund with XFeat falls short of SIFT's 4 of 5 with the network: the nearest-neighbour baseline
-// localizes 4 of 5 within (0.25 m, 2 deg) (25.jpg at 0.31 m, as with SIFT), the network 2 or 3
-// depending on the training seed (15.jpg and 20.jpg at 0.3 to 1 m; more iterations, less or no
-// descriptor noise and other ratio tests did not change that). The checks hold what is measured.
-TEST(XFeatRealDataTest, LundQueries) { ExpectFineQueries("lund", 2, 4); }
+// Lund with XFeat: the network and the nearest-neighbour baseline each localize 4 of 5 within
+// (0.25 m, 2 deg) (15.jpg at 1.9 m, or 05 or 20.jpg at 0.3 m with another training or sample
+// order). Before each point kept only its most confident keypoint, the network localized 2 of 5:
+// its ~1,200 matches per query held only ~150 distinct points, and RANSAC lost the right ones
+// among the repeats. The check keeps a query's margin for the training's variation.
+TEST(XFeatRealDataTest, LundQueries) { ExpectFineQueries("lund", 3, 4); }
 
 }  // namespace
 }  // namespace hscloc

@@ -29,6 +29,7 @@ struct LocalizeArguments {
   std::string device = "cpu";
   bool no_visibility_filter = false;
   bool no_image_id = false;
+  bool every_keypoint = false;
   LocalizerOptions options;
   QueryListRunOptions run;
 };
@@ -40,6 +41,7 @@ int RunLocalize(LocalizeArguments& arguments) {
   options.retrieval = ParseRetrievalMode(arguments.retrieval);
   options.visibility_filter = !arguments.no_visibility_filter;
   options.use_image_id = !arguments.no_image_id;
+  options.one_keypoint_per_point = !arguments.every_keypoint;
   options.Check();
 
   std::vector<QueryWithIntrinsics> queries;
@@ -124,6 +126,9 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->capture_default_str();
   command->add_flag("--no-visibility-filter", arguments->no_visibility_filter,
                     "Keep matches to points the retrieved image does not see");
+  command->add_flag("--every-keypoint", arguments->every_keypoint,
+                    "Keep every keypoint the network sends to a point (the paper), not only the "
+                    "most confident");
   command->add_flag("--no-image-id", arguments->no_image_id,
                     "Run the network without the retrieved image's id");
   command->add_flag("--masked-decoding", options.visibility_masked_decoding,

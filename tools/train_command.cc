@@ -50,7 +50,18 @@ std::vector<std::pair<std::string, NetworkEvaluation>> EvaluateHeldOut(const Net
                                                                        const LocalizationMap& map,
                                                                        double fraction,
                                                                        uint64_t seed) {
-  const std::vector<uint32_t> held_out = HeldOutObservations(map.scene(), fraction, seed);
+  std::vector<uint32_t> held_out = HeldOutObservations(map.scene(), fraction, seed);
+  // Unmasked decoding of a pooled network scores every point of the map per observation: on the
+  // aachen preset (1.5 M points, 231 k held out) the whole set would take longer than training.
+  // An evenly spaced sample of 20,000 measures the accuracy to about +-0.3 %.
+  constexpr size_t kMaxEvaluated = 20000;
+  if (held_out.size() > kMaxEvaluated) {
+    std::vector<uint32_t> sample(kMaxEvaluated);
+    for (size_t i = 0; i < kMaxEvaluated; ++i) {
+      sample[i] = held_out[i * held_out.size() / kMaxEvaluated];
+    }
+    held_out = std::move(sample);
+  }
   std::vector<std::pair<std::string, NetworkEvaluation>> evaluations = {
       {"held_out", EvaluateNetwork(network, map.scene(), map.label_tree(), held_out)},
       {"held_out_masked",
