@@ -301,10 +301,9 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
         peaks["libtorch_gflops"].get<double>());
   }
 
-  md << "## Peers on the same data\n\nHSC and the nearest-neighbour baseline share retrieval "
-        "(the global descriptor's top 10, then the network's point votes' top 10 where those "
-        "give no pose with 30 inliers), the visibility filter and the pose stage; times are per "
-        "query on one thread. "
+  md << "## Peers on the same data\n\nHSC and the nearest-neighbour baseline share the "
+        "localizer's retrieval (10 candidates per round), the visibility filter and the pose "
+        "stage; times are per query on one thread. "
         "COLMAP matches each query against every map image with its SIFT matcher, then registers "
         "it (`matches_importer` + `image_registrator`, wall time per query; the map images' "
         "matches among themselves, which its registration needs, are made beforehand and not "

@@ -204,14 +204,23 @@ std::vector<LocalizationCandidate> Localizer::RetrieveByVotes(
   const int64_t num_keypoints = query.descriptors.rows();
   if (num_keypoints == 0) return candidates;
   // Without an image id the network ranks every point of the map (a network trained with image
-  // dropout has learned to), and each prediction votes as much as the network is sure of it.
+  // dropout has learned to). Each prediction votes as much as the network is sure of it, divided
+  // by the square root of the point's track length, so that a point seen from everywhere does not
+  // outvote the rarer ones that place the query (as tf-idf weights words).
   const PointPredictions predictions =
       network_->Predict(query.descriptors, {network_->NoImageIndex()}, map_->label_tree());
   std::vector<int64_t> points(num_keypoints);
-  std::vector<float> weights(num_keypoints);
+  std::vector<float> weights(num_keypoints, 0.0f);
   for (int64_t keypoint = 0; keypoint < num_keypoints; ++keypoint) {
-    points[keypoint] = predictions.point_indices(0, keypoint);
-    weights[keypoint] = predictions.confidences(0, keypoint);
+    const int64_t point = predictions.point_indices(0, keypoint);
+    points[keypoint] = point;
+    if (point < 0) continue;
+    const auto index = static_cast<uint32_t>(point);
+    const auto track_length =
+        static_cast<float>(point_votes_->ImagesEnd(index) - point_votes_->ImagesBegin(index));
+    if (track_length > 0) {
+      weights[keypoint] = predictions.confidences(0, keypoint) / std::sqrt(track_length);
+    }
   }
   const std::vector<RetrievalHit> hits =
       point_votes_->Search(points, weights, options.top_k + static_cast<int>(tried.size()));

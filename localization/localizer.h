@@ -115,7 +115,7 @@ struct LocalizationCandidate {
   uint32_t image_index = 0;  // dense index in the map's scene
   image_t image_id = kInvalidImageId;
   CandidateSource source = CandidateSource::kGlobalDescriptor;
-  float retrieval_score = 0;  // cosine of global descriptors, or summed vote confidences
+  float retrieval_score = 0;  // cosine of global descriptors, or summed vote weights
   bool evaluated = false;     // false when an early exit skipped it
   int num_matches = 0;        // after the visibility filter
   int num_inliers = 0;

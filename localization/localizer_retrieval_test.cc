@@ -1,0 +1,211 @@
+// The Localizer's retrieval rounds (the global descriptor, then the network's point votes) and the
+// network's matches (one keypoint per predicted point), on the trained `small` synthetic city.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <iostream>
+#include <map>
+#include <set>
+
+#include "localization/localizer.h"
+#include "localization/localizer_test_support.h"
+#include "retrieval/point_votes.h"
+
+namespace hscloc {
+namespace {
+
+using ::testing::HasSubstr;
+
+// A global descriptor that points retrieval at the far side of the city: the database image
+// farthest from the query's true position lends its descriptor.
+Eigen::VectorXf MisleadingGlobalDescriptor(const LocalizationMap& map, const Rigid3d& truth) {
+  const Eigen::Vector3d position = truth.Inverse().translation;
+  size_t farthest = 0;
+  double farthest_distance = -1;
+  for (size_t i = 0; i < map.scene().NumImages(); ++i) {
+    const double distance =
+        (map.scene().images[i].cam_from_world.Inverse().translation - position).norm();
+    if (distance > farthest_distance) {
+      farthest_distance = distance;
+      farthest = i;
+    }
+  }
+  return map.global_descriptors().row(static_cast<int64_t>(farthest)).transpose();
+}
+
+bool WithinQuarterMetreAndTwoDegrees(const NamedPose& truth, const PoseResult& result) {
+  if (!result.success) return false;
+  const std::vector<QueryPoseError> errors =
+      ComputePoseErrors({truth}, {{truth.name, result.cam_from_world}});
+  return errors.size() == 1 && errors[0].position < 0.25 && errors[0].rotation_deg < 2;
+}
+
+TEST_F(SmallCityLocalizerTest, PointVotesRecoverQueriesThatRetrievalSendsAstray) {
+  const QuerySet& set = Set("day");
+  LocalizerOptions global_only;
+  global_only.retrieval = RetrievalMode::kGlobal;
+  int recovered = 0;
+  int astray_within = 0;
+  const size_t count = std::min<size_t>(set.queries.size(), 8);
+  for (size_t q = 0; q < count; ++q) {
+    SCOPED_TRACE(set.queries[q].name);
+    LocalizationQuery query = set.queries[q];
+    query.global_descriptor =
+        MisleadingGlobalDescriptor(localizer().map(), set.ground_truth[q].cam_from_world);
+    const PoseResult astray = localizer().Localize(query, global_only);
+    ASSERT_EQ(astray.candidates.size(), 10u);
+
+    const PoseResult result = localizer().Localize(query);
+    ASSERT_EQ(result.candidates.size(), 20u) << "the first round was weak: votes add 10 more";
+    std::set<uint32_t> images;
+    for (size_t k = 0; k < result.candidates.size(); ++k) {
+      const LocalizationCandidate& candidate = result.candidates[k];
+      EXPECT_EQ(candidate.source,
+                k < 10 ? CandidateSource::kGlobalDescriptor : CandidateSource::kPointVotes);
+      EXPECT_TRUE(candidate.evaluated);
+      images.insert(candidate.image_index);
+    }
+    EXPECT_EQ(images.size(), 20u) << "no image is tried twice";
+    for (size_t k = 11; k < 20; ++k) {
+      EXPECT_LE(result.candidates[k].retrieval_score, result.candidates[k - 1].retrieval_score);
+    }
+    ASSERT_TRUE(result.success) << result.failure_reason;
+    EXPECT_EQ(result.candidates[result.best_candidate].source, CandidateSource::kPointVotes);
+    recovered += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], result);
+    astray_within += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], astray);
+  }
+  EXPECT_EQ(astray_within, 0) << "the misleading descriptor must mislead for the test to mean "
+                                 "anything";
+  EXPECT_EQ(recovered, static_cast<int>(count));
+}
+
+TEST_F(SmallCityLocalizerTest, TheVotesRoundFollowsOnlyAFirstRoundBelowTheThreshold) {
+  const LocalizationQuery& query = Set("day").queries.front();
+  LocalizerOptions global_only;
+  global_only.retrieval = RetrievalMode::kGlobal;
+  const PoseResult first_round = localizer().Localize(query, global_only);
+  ASSERT_TRUE(first_round.success) << first_round.failure_reason;
+  const auto candidates_with_threshold = [&](int threshold) {
+    LocalizerOptions options;
+    options.vote_retrieval_below_inliers = threshold;
+    return localizer().Localize(query, options).candidates.size();
+  };
+  EXPECT_EQ(candidates_with_threshold(first_round.num_inliers), 10u);
+  EXPECT_EQ(candidates_with_threshold(first_round.num_inliers + 1), 20u);
+  EXPECT_EQ(candidates_with_threshold(0), 10u);
+}
+
+TEST_F(SmallCityLocalizerTest, EachPredictedPointKeepsItsMostConfidentKeypoint) {
+  const Network& network = *localizer().network();
+  const bool masked = network.options().masked_decoding;
+  LocalizerOptions every_keypoint;
+  every_keypoint.one_keypoint_per_point = false;
+  size_t repeated_points = 0;
+  size_t checked = 0;
+  for (const LocalizationQuery& query : Set("night").queries) {
+    SCOPED_TRACE(query.name);
+    const PoseResult result = localizer().Localize(query);
+    if (!result.success) continue;
+    ++checked;
+    const uint32_t image = result.candidates[result.best_candidate].image_index;
+    const PointPredictions predictions =
+        network.Predict(query.descriptors, {image}, localizer().map().label_tree(),
+                        masked ? &localizer().map().visibility() : nullptr);
+    // Per point the network predicted in this image (and the image observes), its most
+    // confident keypoint.
+    std::map<uint32_t, std::pair<float, int>> best_keypoint;
+    for (int keypoint = 0; keypoint < predictions.num_descriptors; ++keypoint) {
+      const int64_t point = predictions.point_indices(0, keypoint);
+      if (point < 0 || !localizer().map().visibility().IsVisible(image, point)) continue;
+      const float confidence = predictions.confidences(0, keypoint);
+      auto [it, inserted] = best_keypoint.emplace(point, std::make_pair(confidence, keypoint));
+      if (!inserted && confidence > it->second.first) it->second = {confidence, keypoint};
+    }
+    ASSERT_EQ(result.match_points.size(), best_keypoint.size());
+    for (size_t i = 0; i < result.match_points.size(); ++i) {
+      const auto found = best_keypoint.find(result.match_points[i]);
+      ASSERT_NE(found, best_keypoint.end());
+      EXPECT_FLOAT_EQ(predictions.confidences(0, result.match_keypoints[i]), found->second.first);
+    }
+    const PoseResult all = localizer().Localize(query, every_keypoint);
+    if (all.success) {
+      const std::set<uint32_t> distinct(all.match_points.begin(), all.match_points.end());
+      repeated_points += all.match_points.size() - distinct.size();
+    }
+  }
+  EXPECT_GE(checked, Set("night").queries.size() * 8 / 10);
+  // Clutter keypoints land on points that real detections already predict: the switch matters.
+  EXPECT_GT(repeated_points, 0u);
+}
+
+// A vote weighs the network's confidence over the square root of the point's track length.
+TEST_F(SmallCityLocalizerTest, VotesWeighConfidenceOverTheSquareRootOfTrackLength) {
+  const Network& network = *localizer().network();
+  const LocalizationMap& map = localizer().map();
+  const PointVoteIndex index(map.visibility());
+  LocalizerOptions votes_only;
+  votes_only.retrieval = RetrievalMode::kVotes;
+  for (size_t q = 0; q < 3; ++q) {
+    const LocalizationQuery& query = Set("night").queries[q];
+    SCOPED_TRACE(query.name);
+    const PointPredictions predictions =
+        network.Predict(query.descriptors, {network.NoImageIndex()}, map.label_tree());
+    std::vector<int64_t> points;
+    std::vector<float> weights;
+    for (int64_t keypoint = 0; keypoint < predictions.num_descriptors; ++keypoint) {
+      const int64_t point = predictions.point_indices(0, keypoint);
+      if (point < 0) continue;
+      const auto observers = static_cast<float>(index.ImagesEnd(point) - index.ImagesBegin(point));
+      points.push_back(point);
+      weights.push_back(observers > 0 ? predictions.confidences(0, keypoint) / std::sqrt(observers)
+                                      : 0.0f);
+    }
+    const std::vector<RetrievalHit> expected = index.Search(points, weights, 10);
+    const PoseResult result = localizer().Localize(query, votes_only);
+    ASSERT_EQ(result.candidates.size(), expected.size());
+    for (size_t k = 0; k < expected.size(); ++k) {
+      EXPECT_EQ(result.candidates[k].image_index, expected[k].image_index) << k;
+      EXPECT_FLOAT_EQ(result.candidates[k].retrieval_score, expected[k].score) << k;
+    }
+  }
+}
+
+TEST_F(SmallCityLocalizerTest, VotesAloneRetrieveAsWellAsTheGlobalDescriptor) {
+  LocalizerOptions global_only;
+  global_only.retrieval = RetrievalMode::kGlobal;
+  LocalizerOptions votes_only;
+  votes_only.retrieval = RetrievalMode::kVotes;
+  for (const char* condition : {"day", "night"}) {
+    SCOPED_TRACE(condition);
+    const RunSummary global = LocalizeAll(localizer(), global_only, Set(condition), condition);
+    const RunSummary votes = LocalizeAll(localizer(), votes_only, Set(condition), condition);
+    std::cout << fmt::format("{}: within (0.25 m, 2 deg) global {:.0f} %, votes {:.0f} %\n",
+                             condition, 100 * global.accuracy.localized_fraction[0],
+                             100 * votes.accuracy.localized_fraction[0]);
+    EXPECT_GE(votes.accuracy.localized_fraction[0], global.accuracy.localized_fraction[0] - 0.04);
+    for (const PoseResult& result : votes.results) {
+      EXPECT_LE(result.candidates.size(), 10u);
+      for (const LocalizationCandidate& candidate : result.candidates) {
+        EXPECT_EQ(candidate.source, CandidateSource::kPointVotes);
+        EXPECT_GT(candidate.retrieval_score, 0);
+      }
+    }
+  }
+}
+
+TEST(LocalizerTest, RetrievalModeNamesRoundTrip) {
+  for (const RetrievalMode mode :
+       {RetrievalMode::kGlobal, RetrievalMode::kGlobalThenVotes, RetrievalMode::kVotes}) {
+    EXPECT_EQ(ParseRetrievalMode(RetrievalModeName(mode)), mode);
+  }
+  EXPECT_THAT(testing::InvalidArgumentMessage([] { ParseRetrievalMode("netvlad"); }),
+              HasSubstr("'netvlad'"));
+  LocalizerOptions options;
+  options.vote_retrieval_below_inliers = -1;
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { options.Check(); }),
+              HasSubstr("vote_retrieval_below_inliers"));
+}
+
+}  // namespace
+}  // namespace hscloc
