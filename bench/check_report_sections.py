@@ -11,6 +11,10 @@ import sys
 bench, source, work = sys.argv[1], pathlib.Path(sys.argv[2]), pathlib.Path(sys.argv[3])
 work.mkdir(parents=True, exist_ok=True)
 results = json.loads(source.read_text())
+# Only the first row keeps curves, so the picture holds exactly the two injected below.
+for other in results["scale"][1:]:
+    other.pop("held_out_curve", None)
+    other.pop("localization_curve", None)
 row = results["scale"][0]
 row["held_out_curve"] = [
     {"iteration": 100, "seconds": 30.0, "point_accuracy": 0.62},
