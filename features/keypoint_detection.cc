@@ -108,13 +108,13 @@ DescriptorMatrix SampleDescriptors(const float* map, int dimension, int height, 
   return descriptors;
 }
 
-Letterbox::Letterbox(int photo_width, int photo_height, int input_size)
+Letterbox::Letterbox(int photo_width, int photo_height, int longer_side)
     : photo_width(photo_width), photo_height(photo_height) {
-  THROW_CHECK_MSG(photo_width > 0 && photo_height > 0 && input_size > 0, "photo {} x {}, input {}",
-                  photo_width, photo_height, input_size);
-  const double scale = static_cast<double>(input_size) / std::max(photo_width, photo_height);
-  scaled_width = std::clamp(static_cast<int>(std::lround(photo_width * scale)), 1, input_size);
-  scaled_height = std::clamp(static_cast<int>(std::lround(photo_height * scale)), 1, input_size);
+  THROW_CHECK_MSG(photo_width > 0 && photo_height > 0 && longer_side > 0,
+                  "photo {} x {}, longer side {}", photo_width, photo_height, longer_side);
+  const double scale = static_cast<double>(longer_side) / std::max(photo_width, photo_height);
+  scaled_width = std::clamp(static_cast<int>(std::lround(photo_width * scale)), 1, longer_side);
+  scaled_height = std::clamp(static_cast<int>(std::lround(photo_height * scale)), 1, longer_side);
 }
 
 Eigen::Vector2f Letterbox::ToInput(const Eigen::Vector2f& photo_px) const {
@@ -123,6 +123,37 @@ Eigen::Vector2f Letterbox::ToInput(const Eigen::Vector2f& photo_px) const {
 
 Eigen::Vector2f Letterbox::ToPhoto(const Eigen::Vector2f& input_px) const {
   return {input_px.x() * photo_width / scaled_width, input_px.y() * photo_height / scaled_height};
+}
+
+std::vector<int> TileOrigins(int length, int tile, int min_overlap, int alignment) {
+  THROW_CHECK_MSG(alignment > 0 && tile % alignment == 0 && length % alignment == 0 &&
+                      length >= tile && min_overlap >= 0 && min_overlap <= tile - alignment,
+                  "length {}, tile {}, overlap {}, alignment {}", length, tile, min_overlap,
+                  alignment);
+  if (length == tile) return {0};
+  // Whole cells, so that an even spread rounded to cells never drifts past the overlap.
+  const int stride = (tile - min_overlap) / alignment * alignment;
+  const int count = 1 + (length - tile + stride - 1) / stride;
+  const int last = (length - tile) / alignment;
+  std::vector<int> origins(count);
+  for (int i = 0; i < count; ++i) {
+    origins[i] = alignment * static_cast<int>(static_cast<int64_t>(last) * i / (count - 1));
+  }
+  return origins;
+}
+
+int NearestTile(const std::vector<int>& origins, int tile, float position) {
+  THROW_CHECK(!origins.empty());
+  int nearest = 0;
+  float best = INFINITY;
+  for (int i = 0; i < static_cast<int>(origins.size()); ++i) {
+    const float distance = std::abs(position - (origins[i] + 0.5f * tile));
+    if (distance < best) {
+      best = distance;
+      nearest = i;
+    }
+  }
+  return nearest;
 }
 
 }  // namespace hscloc

@@ -37,12 +37,12 @@ std::vector<Peak> NonMaximumSuppression(const ScoreMap& scores, int radius_px, f
 DescriptorMatrix SampleDescriptors(const float* map, int dimension, int height, int width,
                                    const KeypointMatrix& points);
 
-// Where a photo lands in a square network input of side `input_size`: scaled to fit with its
-// aspect kept (the longer side fills the input) into the top-left corner, the rest padded. Each
-// axis has its own exact factor (the scaled size is rounded to whole pixels), and the mapping is
-// that of an image resize with pixel centres aligned (cv::resize).
+// Where a photo lands when scaled, its aspect kept, so that its longer side is `longer_side` (into
+// the top-left corner of a network input, the rest padded). Each axis has its own exact factor
+// (the scaled size is rounded to whole pixels), and the mapping is that of an image resize with
+// pixel centres aligned (cv::resize).
 struct Letterbox {
-  Letterbox(int photo_width, int photo_height, int input_size);
+  Letterbox(int photo_width, int photo_height, int longer_side);
   int photo_width;
   int photo_height;
   int scaled_width;
@@ -50,5 +50,15 @@ struct Letterbox {
   Eigen::Vector2f ToInput(const Eigen::Vector2f& photo_px) const;
   Eigen::Vector2f ToPhoto(const Eigen::Vector2f& input_px) const;
 };
+
+// Tiles of side `tile` that cover [0, length) for a network with a fixed input: the fewest whose
+// neighbours overlap by at least `min_overlap`, spread evenly, each origin a multiple of
+// `alignment` (the network's cell), the last ending at `length`. `length` must be a multiple of
+// `alignment` and at least `tile`; one tile when it equals `tile`.
+std::vector<int> TileOrigins(int length, int tile, int min_overlap, int alignment);
+
+// Of the tiles at `origins` (side `tile`), the one whose centre is nearest to `position`: each
+// position takes the network's output from the tile that gives it the most context.
+int NearestTile(const std::vector<int>& origins, int tile, float position);
 
 }  // namespace hscloc

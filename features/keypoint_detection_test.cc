@@ -98,5 +98,36 @@ TEST(LetterboxTest, KeepsTheAspectAndMapsBackExactly) {
   EXPECT_TRUE(portrait.ToPhoto(portrait.ToInput(photo)).isApprox(photo, 1e-6f));
 }
 
+TEST(TileOriginsTest, FewestAlignedTilesThatOverlapEnoughAndCoverTheLength) {
+  EXPECT_EQ(TileOrigins(640, 640, 128, 8), std::vector<int>{0});
+  EXPECT_EQ(TileOrigins(1024, 640, 128, 8), (std::vector<int>{0, 384}));
+  for (const int length : {648, 768, 1024, 1152, 1160, 1536, 2000, 4096}) {
+    for (const int overlap : {0, 64, 100, 128, 632}) {
+      const std::vector<int> origins = TileOrigins(length, 640, overlap, 8);
+      ASSERT_FALSE(origins.empty());
+      EXPECT_EQ(origins.front(), 0);
+      EXPECT_EQ(origins.back(), length - 640) << length << " " << overlap;
+      for (size_t i = 0; i < origins.size(); ++i) {
+        EXPECT_EQ(origins[i] % 8, 0);
+        if (i > 0) EXPECT_GE(origins[i - 1] + 640 - origins[i], overlap) << length;
+      }
+      // One tile fewer, at the largest stride the overlap allows, could not reach the end.
+      const int stride = (640 - overlap) / 8 * 8;
+      EXPECT_LT(640 + (static_cast<int>(origins.size()) - 2) * stride, length)
+          << length << " " << overlap;
+    }
+  }
+  EXPECT_THROW(TileOrigins(600, 640, 128, 8), std::invalid_argument);
+  EXPECT_THROW(TileOrigins(1020, 640, 128, 8), std::invalid_argument);
+}
+
+TEST(NearestTileTest, EachPositionGoesToTheTileWhoseCentreIsNearest) {
+  const std::vector<int> origins = {0, 384};  // centres 320 and 704
+  EXPECT_EQ(NearestTile(origins, 640, 0.5f), 0);
+  EXPECT_EQ(NearestTile(origins, 640, 511.5f), 0);
+  EXPECT_EQ(NearestTile(origins, 640, 512.5f), 1);
+  EXPECT_EQ(NearestTile(origins, 640, 1023.5f), 1);
+}
+
 }  // namespace
 }  // namespace hscloc

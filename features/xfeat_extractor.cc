@@ -16,6 +16,10 @@ constexpr int kInputSize = 640;
 constexpr int kCellSize = 8;
 constexpr int kCells = kInputSize / kCellSize;
 constexpr int kDimension = 64;
+constexpr int kBins = kCellSize * kCellSize + 1;
+// Neighbouring tiles share at least this much, so that a cell's outputs come from a tile where it
+// lies at least half of it from the tile's border (or at the photo's own border).
+constexpr int kTileOverlap = 128;
 // The export names its outputs by graph node: descriptors, keypoint logits, reliability.
 const std::vector<std::string> kOutputNames = {"output", "1266", "266"};
 
@@ -28,31 +32,68 @@ void CheckShape(const cv::Mat& blob, const std::vector<int>& expected, const std
   }
 }
 
-// The photo scaled into the top-left corner of the zero-padded square input, as a 1x3xSxS blob.
-cv::Mat NetworkInput(const cv::Mat& image, const Letterbox& letterbox) {
-  cv::Mat input = cv::Mat::zeros(kInputSize, kInputSize, image.type());
-  const cv::Size scaled(letterbox.scaled_width, letterbox.scaled_height);
-  cv::resize(image, input(cv::Rect(cv::Point(0, 0), scaled)), scaled, 0, 0,
-             scaled.width < image.cols ? cv::INTER_AREA : cv::INTER_LINEAR);
-  return cv::dnn::blobFromImage(input, 1.0 / 255, cv::Size(), cv::Scalar(), /*swapRB=*/true);
+// The network's outputs over the whole scaled photo, one value per 8 x 8 cell, channel-major:
+// each cell's from the tile that gives it the most context.
+struct CellMaps {
+  CellMaps(int cells_x, int cells_y)
+      : cells_x(cells_x),
+        cells_y(cells_y),
+        descriptors(static_cast<size_t>(kDimension) * cells_x * cells_y),
+        logits(static_cast<size_t>(kBins) * cells_x * cells_y),
+        reliability(static_cast<size_t>(cells_x) * cells_y) {}
+  int cells_x;
+  int cells_y;
+  std::vector<float> descriptors;  // kDimension x cells_y x cells_x
+  std::vector<float> logits;       // kBins x cells_y x cells_x
+  std::vector<float> reliability;  // cells_y x cells_x
+};
+
+// For each cell along an axis of the canvas, the tile it takes its outputs from.
+std::vector<int> CellTiles(const std::vector<int>& origins, int cells) {
+  std::vector<int> tiles(cells);
+  for (int c = 0; c < cells; ++c) {
+    tiles[c] = NearestTile(origins, kInputSize, (c + 0.5f) * kCellSize);
+  }
+  return tiles;
 }
 
-// Keypoint probability x reliability (upsampled) per input pixel, zero over the padding.
-ScoreMap KeypointScores(const cv::Mat& logits, const cv::Mat& reliability_cells,
-                        const Letterbox& letterbox) {
-  ScoreMap scores = KeypointHeatmap(logits.ptr<float>(), kCells, kCells);
+// Copies the cells of `tile_output` (channels x kCells x kCells, the tile at origin_x, origin_y)
+// that belong to the tile into `canvas` (channels x cells_y x cells_x).
+void CopyTileCells(const cv::Mat& tile_output, int channels, int origin_x, int origin_y,
+                   const std::vector<bool>& column_taken, const std::vector<bool>& row_taken,
+                   int cells_x, float* canvas) {
+  const int cells_y = static_cast<int>(row_taken.size());
+  const float* tile = tile_output.ptr<float>();
+  const int tile_cx = origin_x / kCellSize, tile_cy = origin_y / kCellSize;
+  for (int channel = 0; channel < channels; ++channel) {
+    for (int cy = 0; cy < kCells; ++cy) {
+      if (!row_taken[tile_cy + cy]) continue;
+      const float* from = tile + (static_cast<int64_t>(channel) * kCells + cy) * kCells;
+      float* to =
+          canvas + (static_cast<int64_t>(channel) * cells_y + tile_cy + cy) * cells_x + tile_cx;
+      for (int cx = 0; cx < kCells; ++cx) {
+        if (column_taken[tile_cx + cx]) to[cx] = from[cx];
+      }
+    }
+  }
+}
+
+// Keypoint probability x reliability (upsampled) per canvas pixel, zero beyond the scaled photo.
+ScoreMap KeypointScores(const CellMaps& maps, const Letterbox& letterbox) {
+  ScoreMap scores = KeypointHeatmap(maps.logits.data(), maps.cells_y, maps.cells_x);
+  const int width = maps.cells_x * kCellSize, height = maps.cells_y * kCellSize;
   cv::Mat reliability;
-  cv::resize(reliability_cells.reshape(1, std::vector<int>{kCells, kCells}), reliability,
-             cv::Size(kInputSize, kInputSize), 0, 0, cv::INTER_LINEAR);
-  scores.array() *=
-      Eigen::Map<const ScoreMap>(reliability.ptr<float>(), kInputSize, kInputSize).array();
-  scores.rightCols(kInputSize - letterbox.scaled_width).setZero();
-  scores.bottomRows(kInputSize - letterbox.scaled_height).setZero();
+  cv::resize(
+      cv::Mat(maps.cells_y, maps.cells_x, CV_32F, const_cast<float*>(maps.reliability.data())),
+      reliability, cv::Size(width, height), 0, 0, cv::INTER_LINEAR);
+  scores.array() *= Eigen::Map<const ScoreMap>(reliability.ptr<float>(), height, width).array();
+  scores.rightCols(width - letterbox.scaled_width).setZero();
+  scores.bottomRows(height - letterbox.scaled_height).setZero();
   return scores;
 }
 
 // Keypoints in the photo's pixels, their scores, and descriptors sampled at them.
-ImageFeatures FeaturesAtPeaks(const std::vector<Peak>& peaks, const cv::Mat& descriptor_map,
+ImageFeatures FeaturesAtPeaks(const std::vector<Peak>& peaks, const CellMaps& maps,
                               const Letterbox& letterbox) {
   const auto count = static_cast<Eigen::Index>(peaks.size());
   ImageFeatures features;
@@ -66,7 +107,7 @@ ImageFeatures FeaturesAtPeaks(const std::vector<Peak>& peaks, const cv::Mat& des
     features.scores(i) = peaks[i].score;
   }
   features.descriptors =
-      SampleDescriptors(descriptor_map.ptr<float>(), kDimension, kCells, kCells, in_cells);
+      SampleDescriptors(maps.descriptors.data(), kDimension, maps.cells_y, maps.cells_x, in_cells);
   return features;
 }
 
@@ -80,11 +121,14 @@ std::string DefaultXFeatModelPath() {
 void XFeatOptions::Check() const {
   if (model_path.empty()) {
     ThrowInvalidArgument(
-        "XFeatOptions.model_path is empty: give the XFeat ONNX file (weights/xfeat/xfeat.onnx of "
-        "the shared data, or set HSCLOC_XFEAT_MODEL)");
+        "XFeatOptions.model_path is empty: give the XFeat ONNX file (data/weights/xfeat/xfeat.onnx "
+        "of the repository, or set HSCLOC_XFEAT_MODEL)");
   }
   if (max_keypoints <= 0) {
     ThrowInvalidArgument("XFeatOptions.max_keypoints must be positive (got {})", max_keypoints);
+  }
+  if (max_side_px <= 0) {
+    ThrowInvalidArgument("XFeatOptions.max_side_px must be positive (got {})", max_side_px);
   }
   if (nms_radius_px < 0) {
     ThrowInvalidArgument("XFeatOptions.nms_radius_px must be >= 0 (got {})", nms_radius_px);
@@ -126,26 +170,68 @@ XFeatExtractor::XFeatExtractor(const XFeatOptions& options)
 
 XFeatExtractor::~XFeatExtractor() = default;
 
+namespace {
+
+// The photo scaled as `letterbox` says, padded to whole cells and to at least the network's input,
+// and covered by overlapping tiles of the network's input, each one forward pass.
+CellMaps RunOnTiles(cv::dnn::Net& net, const std::string& model_path, const cv::Mat& image,
+                    const Letterbox& letterbox, const std::string& image_name) {
+  const auto canvas_side = [](int scaled) {
+    return std::max(kInputSize, (scaled + kCellSize - 1) / kCellSize * kCellSize);
+  };
+  cv::Mat canvas = cv::Mat::zeros(canvas_side(letterbox.scaled_height),
+                                  canvas_side(letterbox.scaled_width), image.type());
+  const cv::Size scaled(letterbox.scaled_width, letterbox.scaled_height);
+  cv::resize(image, canvas(cv::Rect(cv::Point(0, 0), scaled)), scaled, 0, 0,
+             scaled.width < image.cols ? cv::INTER_AREA : cv::INTER_LINEAR);
+
+  CellMaps maps(canvas.cols / kCellSize, canvas.rows / kCellSize);
+  const std::vector<int> origins_x = TileOrigins(canvas.cols, kInputSize, kTileOverlap, kCellSize);
+  const std::vector<int> origins_y = TileOrigins(canvas.rows, kInputSize, kTileOverlap, kCellSize);
+  const std::vector<int> tile_of_column = CellTiles(origins_x, maps.cells_x);
+  const std::vector<int> tile_of_row = CellTiles(origins_y, maps.cells_y);
+  for (int ty = 0; ty < static_cast<int>(origins_y.size()); ++ty) {
+    for (int tx = 0; tx < static_cast<int>(origins_x.size()); ++tx) {
+      const cv::Rect tile(origins_x[tx], origins_y[ty], kInputSize, kInputSize);
+      net.setInput(cv::dnn::blobFromImage(canvas(tile), 1.0 / 255, cv::Size(), cv::Scalar(),
+                                          /*swapRB=*/true));
+      std::vector<cv::Mat> outputs;
+      try {
+        net.forward(outputs, kOutputNames);
+      } catch (const cv::Exception& error) {
+        ThrowInvalidArgument("XFeat model {} failed on the image {}: {}", model_path, image_name,
+                             error.what());
+      }
+      CheckShape(outputs[0], {1, kDimension, kCells, kCells}, kOutputNames[0], model_path);
+      CheckShape(outputs[1], {1, kBins, kCells, kCells}, kOutputNames[1], model_path);
+      CheckShape(outputs[2], {1, 1, kCells, kCells}, kOutputNames[2], model_path);
+      std::vector<bool> column_taken(maps.cells_x), row_taken(maps.cells_y);
+      for (int c = 0; c < maps.cells_x; ++c) column_taken[c] = tile_of_column[c] == tx;
+      for (int c = 0; c < maps.cells_y; ++c) row_taken[c] = tile_of_row[c] == ty;
+      CopyTileCells(outputs[0], kDimension, tile.x, tile.y, column_taken, row_taken, maps.cells_x,
+                    maps.descriptors.data());
+      CopyTileCells(outputs[1], kBins, tile.x, tile.y, column_taken, row_taken, maps.cells_x,
+                    maps.logits.data());
+      CopyTileCells(outputs[2], 1, tile.x, tile.y, column_taken, row_taken, maps.cells_x,
+                    maps.reliability.data());
+    }
+  }
+  return maps;
+}
+
+}  // namespace
+
 ExtractedFeatures XFeatExtractor::Extract(const std::filesystem::path& image_path) {
   // The network averages the colour channels itself; a grey photo is read as three equal ones.
   const cv::Mat image = cv::imread(image_path.string(), cv::IMREAD_COLOR);
   if (image.empty()) ThrowInvalidArgument("cannot read the image {}", image_path.string());
-  const Letterbox letterbox(image.cols, image.rows, kInputSize);
-  network_->net.setInput(NetworkInput(image, letterbox));
-  std::vector<cv::Mat> outputs;
-  try {
-    network_->net.forward(outputs, kOutputNames);
-  } catch (const cv::Exception& error) {
-    ThrowInvalidArgument("XFeat model {} failed on the image {}: {}", options_.model_path,
-                         image_path.string(), error.what());
-  }
-  CheckShape(outputs[0], {1, kDimension, kCells, kCells}, kOutputNames[0], options_.model_path);
-  CheckShape(outputs[1], {1, 65, kCells, kCells}, kOutputNames[1], options_.model_path);
-  CheckShape(outputs[2], {1, 1, kCells, kCells}, kOutputNames[2], options_.model_path);
-
-  const std::vector<Peak> peaks = NonMaximumSuppression(
-      KeypointScores(outputs[1], outputs[2], letterbox), options_.nms_radius_px,
-      options_.score_threshold, options_.max_keypoints);
+  const Letterbox letterbox(image.cols, image.rows,
+                            std::min(options_.max_side_px, std::max(image.cols, image.rows)));
+  const CellMaps maps =
+      RunOnTiles(network_->net, options_.model_path, image, letterbox, image_path.string());
+  const std::vector<Peak> peaks =
+      NonMaximumSuppression(KeypointScores(maps, letterbox), options_.nms_radius_px,
+                            options_.score_threshold, options_.max_keypoints);
   if (peaks.empty()) {
     ThrowInvalidArgument("XFeat found no keypoint (score > {}) in the image {}",
                          options_.score_threshold, image_path.string());
@@ -153,7 +239,7 @@ ExtractedFeatures XFeatExtractor::Extract(const std::filesystem::path& image_pat
   ExtractedFeatures extracted;
   extracted.width = image.cols;
   extracted.height = image.rows;
-  extracted.features = FeaturesAtPeaks(peaks, outputs[0], letterbox);
+  extracted.features = FeaturesAtPeaks(peaks, maps, letterbox);
   return extracted;
 }
 

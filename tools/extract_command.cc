@@ -62,6 +62,12 @@ void AddExtractCommand(CLI::App& app, CommandRunner& run) {
                    "XFeat keypoints kept per image (top-K by score)")
       ->capture_default_str();
   command
+      ->add_option("--xfeat-max-side", options.extractor.xfeat.max_side_px,
+                   "Longer side of a photo as XFeat sees it, in pixels (larger photos are scaled "
+                   "down, smaller ones kept; queries must use the map's)")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  command
       ->add_option("--sift-max-keypoints", options.extractor.sift.max_keypoints,
                    "SIFT keypoints kept per image")
       ->capture_default_str();

@@ -123,6 +123,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   query->add_option("--xfeat-model", extractor_options->xfeat.model_path, "XFeat ONNX model")
       ->capture_default_str();
+  query
+      ->add_option("--xfeat-max-side", extractor_options->xfeat.max_side_px,
+                   "Longer side of the photo as XFeat sees it (as the map's features)")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
   query->add_option("--features", *features, "Features file (.h5 or database.db)")
       ->check(CLI::ExistingFile);
   query->add_option("--name", *name, "Image name in --features (default: the photo's name)");
