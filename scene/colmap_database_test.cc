@@ -85,7 +85,11 @@ TEST(ColmapDatabase, ReadsFountainKeypointsAndDescriptorsAsStored) {
     EXPECT_TRUE((features.descriptors.array() == features.descriptors.array().round()).all());
     EXPECT_LE(features.descriptors.maxCoeff(), 255.f);
     EXPECT_NEAR(features.descriptors.row(0).norm(), 512.f, 30.f);
+    // A database keeps the photo's size on the camera only.
+    EXPECT_EQ(reader->ImageSize(name), std::nullopt);
   }
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->ImageSize("absent.jpg"); }),
+              ::testing::HasSubstr("absent.jpg"));
 
   // The first keypoint of image id 1 against its blob, read independently: no pixel shift.
   testing::TempDir dir;

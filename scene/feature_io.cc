@@ -8,6 +8,13 @@
 
 namespace hscloc {
 
+std::optional<PhotoSize> FeatureReader::ImageSize(const std::string& image_name) const {
+  if (!HasImage(image_name)) {
+    ThrowInvalidArgument("{}: no features of the image '{}'", path().string(), image_name);
+  }
+  return std::nullopt;
+}
+
 std::unique_ptr<FeatureReader> OpenFeatureReader(const std::filesystem::path& path) {
   std::string extension = path.extension().string();
   std::transform(extension.begin(), extension.end(), extension.begin(),

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -20,6 +21,14 @@
 #include "scene/reconstruction.h"
 
 namespace hscloc {
+
+struct PhotoSize {
+  int64_t width = 0;
+  int64_t height = 0;
+  bool operator==(const PhotoSize& other) const {
+    return width == other.width && height == other.height;
+  }
+};
 
 // Random access to the local features of a set of images, whatever the file format.
 class FeatureReader {
@@ -31,6 +40,10 @@ class FeatureReader {
   // Throws std::invalid_argument naming the file and the image when the image is missing or its
   // records are malformed (wrong counts, truncated blobs, non-finite values).
   virtual ImageFeatures Read(const std::string& image_name) const = 0;
+  // The photo's width and height in pixels when the file records them (hloc's `image_size`: the
+  // photo's size before any resize); std::nullopt otherwise (a COLMAP database keeps it only on
+  // the camera, and this default says so). Throws for a missing image or a malformed record.
+  virtual std::optional<PhotoSize> ImageSize(const std::string& image_name) const;
   // The path this reader reads.
   virtual const std::filesystem::path& path() const = 0;
 };

@@ -50,14 +50,8 @@ class H5Features : public FeatureReader {
   }
 
   ImageFeatures Read(const std::string& image_name) const override {
-    SilenceHdf5Errors();
-    if (!HasImage(image_name)) {
-      ThrowInvalidArgument("HDF5 file {}: no image '{}' (no group holding keypoints)",
-                           path_.string(), image_name);
-    }
     const std::string where = "image '" + image_name + "'";
-    Handle group = CheckedHandle(H5Gopen2(file_.get(), image_name.c_str(), H5P_DEFAULT), H5Gclose,
-                                 path_, "opening " + where);
+    const Handle group = OpenImageGroup(image_name, where);
     const auto fail = [&](const char* dataset, const std::string& message) {
       ThrowInvalidArgument("HDF5 file {}: {}, dataset {}: {}", path_.string(), where, dataset,
                            message);
@@ -111,9 +105,37 @@ class H5Features : public FeatureReader {
     return features;
   }
 
+  std::optional<PhotoSize> ImageSize(const std::string& image_name) const override {
+    const std::string where = "image '" + image_name + "'";
+    const Handle group = OpenImageGroup(image_name, where);
+    const std::optional<FloatArray> size = ReadFloatArray(group.get(), "image_size", path_, where);
+    if (!size) return std::nullopt;
+    const auto whole_positive = [](float value) {
+      return value >= 1 && value == std::floor(value);
+    };
+    if (size->shape != std::vector<hsize_t>{2} || !whole_positive(size->values[0]) ||
+        !whole_positive(size->values[1])) {
+      ThrowInvalidArgument(
+          "HDF5 file {}: {}, dataset image_size: shape {}, expected 2 whole positive numbers "
+          "(width, height)",
+          path_.string(), where, ShapeString(size->shape));
+    }
+    return PhotoSize{static_cast<int64_t>(size->values[0]), static_cast<int64_t>(size->values[1])};
+  }
+
   const std::filesystem::path& path() const override { return path_; }
 
  private:
+  Handle OpenImageGroup(const std::string& image_name, const std::string& where) const {
+    SilenceHdf5Errors();
+    if (!HasImage(image_name)) {
+      ThrowInvalidArgument("HDF5 file {}: no image '{}' (no group holding keypoints)",
+                           path_.string(), image_name);
+    }
+    return CheckedHandle(H5Gopen2(file_.get(), image_name.c_str(), H5P_DEFAULT), H5Gclose, path_,
+                         "opening " + where);
+  }
+
   std::filesystem::path path_;
   Handle file_;
   std::set<std::string> names_;

@@ -135,6 +135,7 @@ TEST(H5Features, Float32RoundTripIsExactWithNestedNames) {
     EXPECT_THAT(read.descriptors, MatrixEq(features.descriptors));
     EXPECT_THAT(read.scores, MatrixEq(features.scores));
     EXPECT_EQ(read.Dimension(), 128);
+    EXPECT_EQ(reader->ImageSize(name), (PhotoSize{1536, 1024}));
   }
   // hloc's layout: one group per name component, descriptors D x N, image_size (w, h).
   EXPECT_EQ(ReadRawDataset(dir / "features.h5", "db/0001.jpg/descriptors").first,
@@ -358,6 +359,16 @@ TEST(H5Features, MalformedShapesAreReported) {
     raw.Dataset(too_few, "descriptors", {4, 1}, {0, 0, 0, 0});
     const hid_t no_descriptors = raw.Group("no_descriptors.jpg");
     raw.Dataset(no_descriptors, "keypoints", {1, 2}, {1, 1});
+    // hloc's files before image_size, and sizes that are not (width, height) in whole pixels.
+    const hid_t no_size = raw.Group("no_size.jpg");
+    raw.Dataset(no_size, "keypoints", {1, 2}, {1, 1});
+    raw.Dataset(no_size, "descriptors", {1, 1}, {1});
+    const hid_t three_numbers = raw.Group("three_numbers.jpg");
+    raw.Dataset(three_numbers, "keypoints", {1, 2}, {1, 1});
+    raw.Dataset(three_numbers, "image_size", {3}, {640, 480, 3});
+    const hid_t fractional = raw.Group("fractional.jpg");
+    raw.Dataset(fractional, "keypoints", {1, 2}, {1, 1});
+    raw.Dataset(fractional, "image_size", {2}, {640.5f, 480});
   }
   const auto reader = OpenH5Features(dir / "bad.h5");
   EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->Read("three_columns.jpg"); }),
@@ -367,6 +378,14 @@ TEST(H5Features, MalformedShapesAreReported) {
   EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->Read("no_descriptors.jpg"); }),
               HasSubstr("dataset descriptors: missing"));
   EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->Read("absent.jpg"); }),
+              HasSubstr("no image 'absent.jpg'"));
+  EXPECT_EQ(reader->ImageSize("no_size.jpg"), std::nullopt);
+  for (const char* name : {"three_numbers.jpg", "fractional.jpg"}) {
+    EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->ImageSize(name); }),
+                ::testing::AllOf(HasSubstr(name), HasSubstr("dataset image_size"),
+                                 HasSubstr("expected 2 whole positive numbers")));
+  }
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { reader->ImageSize("absent.jpg"); }),
               HasSubstr("no image 'absent.jpg'"));
 }
 

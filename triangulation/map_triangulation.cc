@@ -51,6 +51,15 @@ std::map<image_t, ImageData> ReadImageFeatures(const Reconstruction& model,
     ImageData data;
     data.features = reader.Read(image.name);
     const Camera& camera = model.cameras.at(image.camera_id);
+    if (const std::optional<PhotoSize> size = reader.ImageSize(image.name);
+        size && !(*size == PhotoSize{static_cast<int64_t>(camera.width),
+                                     static_cast<int64_t>(camera.height)})) {
+      ThrowInvalidArgument(
+          "{}, image '{}': the features come from a photo of {} x {} pixels, its camera (camera "
+          "{}) is {} x {}: the features come from photos of another size",
+          reader.path().string(), image.name, size->width, size->height, camera.camera_id,
+          camera.width, camera.height);
+    }
     for (int64_t i = 0; i < data.features.NumKeypoints(); ++i) {
       const Eigen::Vector2d pixel = data.features.keypoints.row(i).cast<double>().transpose();
       if (!camera.IsInside(pixel)) {

@@ -61,21 +61,27 @@ TEST(MapTriangulation, BadInputsAreNamed) {
               }),
               HasSubstr("nowhere"));
 
-  // Features of two of the nine images; then all nine at twice their size.
+  // Features of two of the nine images; then all nine at twice their size; then all nine from
+  // photos of half the size (the keypoints still inside the cameras: only the recorded size says).
   const auto database = OpenFeatureReader(data / "database.db");
   const Reconstruction model = ReadColmapModel(data / "map");
   {
     H5FeatureWriter partial(temp / "partial.h5", H5FloatPrecision::kFloat32);
     H5FeatureWriter doubled(temp / "doubled.h5", H5FloatPrecision::kFloat32);
+    H5FeatureWriter halved(temp / "halved.h5", H5FloatPrecision::kFloat32);
     int written = 0;
     for (const auto& [image_id, image] : model.images) {
       ImageFeatures features = database->Read(image.name);
       if (written++ < 2) partial.Write(image.name, features, 1536, 1024);
-      features.keypoints *= 2;
-      doubled.Write(image.name, features, 3072, 2048);
+      ImageFeatures scaled = features;
+      scaled.keypoints *= 2;
+      doubled.Write(image.name, scaled, 3072, 2048);
+      scaled.keypoints = features.keypoints / 2;
+      halved.Write(image.name, scaled, 768, 512);
     }
     partial.Close();
     doubled.Close();
+    halved.Close();
   }
   EXPECT_THAT(testing::InvalidArgumentMessage([&] {
                 TriangulateMap({data / "map", temp / "partial.h5", {}}, options, temp / "b");
@@ -85,6 +91,11 @@ TEST(MapTriangulation, BadInputsAreNamed) {
                 TriangulateMap({data / "map", temp / "doubled.h5", {}}, options, temp / "c");
               }),
               HasSubstr("the features come from photos of another size"));
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] {
+                TriangulateMap({data / "map", temp / "halved.h5", {}}, options, temp / "e");
+              }),
+              ::testing::AllOf(HasSubstr("a photo of 768 x 512 pixels"),
+                               HasSubstr("is 1536 x 1024"), HasSubstr("another size")));
   EXPECT_THAT(testing::InvalidArgumentMessage([&] {
                 TriangulateMap({data / "map", data / "database.db", {}},
                                QuietOptions("/nowhere/colmap"), temp / "d");
