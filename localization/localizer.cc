@@ -398,15 +398,16 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
     ScopedTimer timer(&result.timings.retrieval_ms);
     result.candidates = votes_only ? RetrieveByVotes(query, options, {}) : Retrieve(query, options);
   }
-  if (!result.candidates.empty()) {
-    result.cam_from_world =
-        map_->scene().images[result.candidates.front().image_index].cam_from_world;
-  }
+  // A query left without a pose answers with its first candidate's, retrieval's best guess.
+  const auto fail = [&](const std::string& reason) {
+    if (!result.candidates.empty()) {
+      result.cam_from_world =
+          map_->scene().images[result.candidates.front().image_index].cam_from_world;
+    }
+    return Finish(std::move(result), reason, total_timer);
+  };
   const int64_t num_keypoints = query.keypoints.rows();
-  if (num_keypoints < 4) {
-    return Finish(std::move(result), fmt::format("the query has {} keypoints", num_keypoints),
-                  total_timer);
-  }
+  if (num_keypoints < 4) return fail(fmt::format("the query has {} keypoints", num_keypoints));
   EvaluateRound(query, options, 0, evaluation);
 
   const auto weak = [&] {
@@ -420,24 +421,15 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
       std::vector<LocalizationCandidate> voted = RetrieveByVotes(query, options, result.candidates);
       result.candidates.insert(result.candidates.end(), voted.begin(), voted.end());
     }
-    if (first_voted == 0 && !result.candidates.empty()) {
-      result.cam_from_world =
-          map_->scene().images[result.candidates.front().image_index].cam_from_world;
-    }
     EvaluateRound(query, options, first_voted, evaluation);
   }
   const size_t num_candidates = result.candidates.size();
-  if (num_candidates == 0) {
-    return Finish(std::move(result), "retrieval found no database image", total_timer);
-  }
+  if (num_candidates == 0) return fail("retrieval found no database image");
 
   result.best_candidate = Choose(result.candidates);
   if (result.best_candidate < 0) {
-    return Finish(
-        std::move(result),
-        fmt::format("no candidate pose with at least {} inliers among {} retrieved images",
-                    options.pose.min_inliers, num_candidates),
-        total_timer);
+    return fail(fmt::format("no candidate pose with at least {} inliers among {} retrieved images",
+                            options.pose.min_inliers, num_candidates));
   }
   const LocalizationCandidate& best = result.candidates[result.best_candidate];
   result.success = true;
