@@ -79,6 +79,11 @@ void AddTriangulateCommand(CLI::App& app, CommandRunner& run) {
   command->add_option("--colmap", options.colmap.colmap_executable, "The COLMAP 3.8 executable")
       ->capture_default_str();
   command->add_option("--threads", options.num_threads, "Matching threads (0: all cores)");
+  command
+      ->add_option("--max-images-in-memory", options.max_images_in_memory,
+                   "Images whose descriptors are held at once while matching (chunks of pairs)")
+      ->check(CLI::Range(2, 1 << 30))
+      ->capture_default_str();
   command->callback(
       [&run, arguments] { run = [arguments] { return RunTriangulate(*arguments); }; });
 }

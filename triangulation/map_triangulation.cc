@@ -21,8 +21,9 @@ namespace {
 
 namespace fs = std::filesystem;
 
+// What matching keeps of every image; descriptors are read again, a chunk of pairs at a time.
 struct ImageData {
-  ImageFeatures features;
+  KeypointMatrix keypoints;
   PosedKeypoints posed;
 };
 
@@ -48,8 +49,7 @@ std::map<image_t, ImageData> ReadImageFeatures(const Reconstruction& model,
   ProgressBar progress("reading features", model.images.size(), Display(show_progress));
   int64_t dimension = -1;
   for (const auto& [image_id, image] : model.images) {
-    ImageData data;
-    data.features = reader.Read(image.name);
+    const ImageFeatures features = reader.Read(image.name);
     const Camera& camera = model.cameras.at(image.camera_id);
     if (const std::optional<PhotoSize> size = reader.ImageSize(image.name);
         size && !(*size == PhotoSize{static_cast<int64_t>(camera.width),
@@ -60,8 +60,8 @@ std::map<image_t, ImageData> ReadImageFeatures(const Reconstruction& model,
           reader.path().string(), image.name, size->width, size->height, camera.camera_id,
           camera.width, camera.height);
     }
-    for (int64_t i = 0; i < data.features.NumKeypoints(); ++i) {
-      const Eigen::Vector2d pixel = data.features.keypoints.row(i).cast<double>().transpose();
+    for (int64_t i = 0; i < features.NumKeypoints(); ++i) {
+      const Eigen::Vector2d pixel = features.keypoints.row(i).cast<double>().transpose();
       if (!camera.IsInside(pixel)) {
         ThrowInvalidArgument(
             "{}, image '{}': keypoint {} at ({:.1f}, {:.1f}) px lies outside its camera's {} x {} "
@@ -70,13 +70,14 @@ std::map<image_t, ImageData> ReadImageFeatures(const Reconstruction& model,
             camera.height, camera.camera_id);
       }
     }
-    if (dimension >= 0 && data.features.Dimension() != dimension) {
+    if (dimension >= 0 && features.Dimension() != dimension) {
       ThrowInvalidArgument("{}, image '{}': descriptors of dimension {}, the images before have {}",
-                           reader.path().string(), image.name, data.features.Dimension(),
-                           dimension);
+                           reader.path().string(), image.name, features.Dimension(), dimension);
     }
-    dimension = data.features.Dimension();
-    data.posed = UndistortKeypoints(camera, image.cam_from_world, data.features.keypoints);
+    dimension = features.Dimension();
+    ImageData data;
+    data.keypoints = features.keypoints;
+    data.posed = UndistortKeypoints(camera, image.cam_from_world, features.keypoints);
     images.emplace(image_id, std::move(data));
     progress.Advance();
   }
@@ -88,22 +89,59 @@ struct PairMatches {
   VerifiedMatches verified;
 };
 
+// The pairs from `begin` on whose images number at most `max_images` (at least one pair).
+size_t ChunkEnd(const std::vector<ImagePair>& pairs, size_t begin, int max_images,
+                std::set<image_t>* images) {
+  images->clear();
+  size_t end = begin;
+  for (; end < pairs.size(); ++end) {
+    const size_t added =
+        (images->count(pairs[end].image_id1) == 0) + (images->count(pairs[end].image_id2) == 0);
+    if (end > begin && images->size() + added > static_cast<size_t>(max_images)) break;
+    images->insert(pairs[end].image_id1);
+    images->insert(pairs[end].image_id2);
+  }
+  return end;
+}
+
+// Pairs are matched in chunks whose images' descriptors fit in options.max_images_in_memory: a
+// chunk's are read (those the previous chunk held are kept), then its pairs matched on all cores.
+// Pairs come sorted by their first image, and co-visible images are near each other, so most
+// images are read once or twice.
 std::vector<PairMatches> MatchPairs(const std::vector<ImagePair>& pairs,
+                                    const Reconstruction& model,
                                     const std::map<image_t, ImageData>& images,
-                                    const MapTriangulationOptions& options) {
+                                    const FeatureReader& reader,
+                                    const MapTriangulationOptions& options,
+                                    MapTriangulationSummary* summary) {
   std::vector<PairMatches> results(pairs.size());
   ProgressBar progress("matching pairs", pairs.size(), Display(options.show_progress));
-  ParallelFor(pairs.size(), options.num_threads, [&](size_t begin, size_t end) {
-    for (size_t i = begin; i < end; ++i) {
-      const ImageData& image1 = images.at(pairs[i].image_id1);
-      const ImageData& image2 = images.at(pairs[i].image_id2);
-      results[i].matches = MatchDescriptors(image1.features.descriptors,
-                                            image2.features.descriptors, options.matching);
-      results[i].verified = VerifyWithKnownPoses(image1.posed, image2.posed, results[i].matches,
-                                                 options.verification);
-      progress.Advance();
+  std::map<image_t, DescriptorMatrix> descriptors;
+  std::set<image_t> chunk_images;
+  for (size_t begin = 0; begin < pairs.size();) {
+    const size_t end = ChunkEnd(pairs, begin, options.max_images_in_memory, &chunk_images);
+    for (auto it = descriptors.begin(); it != descriptors.end();) {
+      it = chunk_images.count(it->first) > 0 ? std::next(it) : descriptors.erase(it);
     }
-  });
+    for (const image_t image_id : chunk_images) {
+      if (descriptors.count(image_id) > 0) continue;
+      descriptors.emplace(image_id, reader.Read(model.images.at(image_id).name).descriptors);
+      ++summary->num_descriptor_reads;
+    }
+    ++summary->num_matching_chunks;
+    ParallelFor(end - begin, options.num_threads, [&](size_t chunk_begin, size_t chunk_end) {
+      for (size_t i = begin + chunk_begin; i < begin + chunk_end; ++i) {
+        const ImagePair& pair = pairs[i];
+        results[i].matches = MatchDescriptors(descriptors.at(pair.image_id1),
+                                              descriptors.at(pair.image_id2), options.matching);
+        results[i].verified =
+            VerifyWithKnownPoses(images.at(pair.image_id1).posed, images.at(pair.image_id2).posed,
+                                 results[i].matches, options.verification);
+        progress.Advance();
+      }
+    });
+    begin = end;
+  }
   return results;
 }
 
@@ -114,7 +152,7 @@ void WriteDatabase(const fs::path& path, const Reconstruction& model,
   for (const auto& [camera_id, camera] : model.cameras) writer.WriteCamera(camera);
   for (const auto& [image_id, image] : model.images) {
     writer.WriteImage(image_id, image.name, image.camera_id);
-    writer.WriteKeypoints(image_id, images.at(image_id).features.keypoints);
+    writer.WriteKeypoints(image_id, images.at(image_id).keypoints);
   }
   for (size_t i = 0; i < pairs.size(); ++i) {
     const ImagePair& pair = pairs[i];
@@ -144,11 +182,11 @@ void CheckIndexesKeypoints(const Reconstruction& triangulated,
   for (const auto& [image_id, image] : triangulated.images) {
     const auto it = images.find(image_id);
     if (it == images.end() ||
-        static_cast<int64_t>(image.points2D.size()) != it->second.features.NumKeypoints()) {
+        static_cast<int64_t>(image.points2D.size()) != it->second.keypoints.rows()) {
       ThrowInvalidArgument(
           "COLMAP's model in {}: image '{}' (id {}) has {} 2D points for {} keypoints",
           out_dir.string(), image.name, image_id, image.points2D.size(),
-          it == images.end() ? 0 : it->second.features.NumKeypoints());
+          it == images.end() ? 0 : it->second.keypoints.rows());
     }
   }
 }
@@ -156,6 +194,10 @@ void CheckIndexesKeypoints(const Reconstruction& triangulated,
 }  // namespace
 
 void MapTriangulationOptions::Check() const {
+  if (max_images_in_memory < 2) {
+    ThrowInvalidArgument("MapTriangulationOptions.max_images_in_memory must be at least 2 (got {})",
+                         max_images_in_memory);
+  }
   pairs.Check();
   matching.Check();
   verification.Check();
@@ -182,7 +224,8 @@ MapTriangulationSummary TriangulateMap(const MapTriangulationInputs& inputs,
   }
   const std::map<image_t, ImageData> images =
       ReadImageFeatures(model, *reader, options.show_progress);
-  const std::vector<PairMatches> matches = MatchPairs(pairs, images, options);
+  const std::vector<PairMatches> matches =
+      MatchPairs(pairs, model, images, *reader, options, &summary);
   summary.num_pairs = static_cast<int64_t>(pairs.size());
   for (const PairMatches& pair : matches) {
     summary.num_matches += static_cast<int64_t>(pair.matches.size());
@@ -191,8 +234,12 @@ MapTriangulationSummary TriangulateMap(const MapTriangulationInputs& inputs,
     summary.num_verified_matches += static_cast<int64_t>(pair.verified.inliers.size());
   }
   summary.seconds_matching = total.ElapsedSeconds();
-  spdlog::info("{} pairs: {} matches, {} pairs verified with {} inlier matches", summary.num_pairs,
-               summary.num_matches, summary.num_verified_pairs, summary.num_verified_matches);
+  spdlog::info(
+      "{} pairs: {} matches, {} pairs verified with {} inlier matches; descriptors of {} images "
+      "read {} times in {} chunks of at most {} images",
+      summary.num_pairs, summary.num_matches, summary.num_verified_pairs,
+      summary.num_verified_matches, images.size(), summary.num_descriptor_reads,
+      summary.num_matching_chunks, options.max_images_in_memory);
 
   fs::create_directories(out_dir / MapTriangulationFiles::kWorkDir);
   for (const char* stale :

@@ -23,6 +23,10 @@ struct MapTriangulationOptions {
   ColmapPointTriangulatorOptions colmap;
   // Threads matching pairs (<= 0: all cores).
   int num_threads = 0;
+  // The images whose descriptors are held at once while matching (2048 XFeat keypoints: 0.5 MiB
+  // each; 4096 SuperPoint ones: 4 MiB). Keypoints and their undistorted coordinates of every
+  // image stay in memory (48 KiB per 2048 keypoints).
+  int max_images_in_memory = 512;
   // Progress bars on stderr for reading features and matching.
   bool show_progress = true;
   void Check() const;
@@ -40,6 +44,8 @@ struct MapTriangulationSummary {
   int64_t num_verified_pairs = 0;    // with at least min_num_inliers epipolar inliers
   int64_t num_matches = 0;           // mutual nearest neighbours passing the ratio test, all pairs
   int64_t num_verified_matches = 0;  // inliers of the verified pairs
+  int64_t num_matching_chunks = 0;   // rounds of matching, each within max_images_in_memory
+  int64_t num_descriptor_reads = 0;  // images whose descriptors were read for matching
   // Read back from the triangulated model.
   int64_t num_registered_images = 0;
   int64_t num_points3D = 0;

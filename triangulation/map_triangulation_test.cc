@@ -3,6 +3,9 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <fstream>
+#include <iterator>
+
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
 #include "util/testing.h"
@@ -50,6 +53,33 @@ TEST(MapTriangulation, FountainFromItsOwnFeaturesAndPoses) {
   EXPECT_EQ(JoinObservations(triangulated, *features).size(), triangulated.NumObservations());
   EXPECT_TRUE(fs::exists(temp / "model" / MapTriangulationFiles::kColmapLog));
   EXPECT_TRUE(fs::exists(temp / "model" / MapTriangulationFiles::kDatabase));
+}
+
+// Matching in chunks of at most 3 images' descriptors gives the database, match for match, that
+// matching with every image's descriptors at once gives; each chunk reads what it lacks.
+TEST(MapTriangulation, MatchesDoNotDependOnHowManyImagesAreHeld) {
+  HSCLOC_REQUIRE_REAL_DATA(data, "fountain-P11");
+  HSCLOC_REQUIRE_COLMAP(colmap);
+  testing::TempDir temp;
+  const MapTriangulationInputs inputs = {data / "map", data / "database.db", {}};
+  const MapTriangulationSummary all_at_once =
+      TriangulateMap(inputs, QuietOptions(colmap), temp / "all");
+  MapTriangulationOptions chunked_options = QuietOptions(colmap);
+  chunked_options.max_images_in_memory = 3;
+  const MapTriangulationSummary chunked = TriangulateMap(inputs, chunked_options, temp / "chunked");
+  EXPECT_EQ(all_at_once.num_matching_chunks, 1);
+  EXPECT_EQ(all_at_once.num_descriptor_reads, 9);
+  // 36 pairs of 9 images, at most 3 images and so at most 3 pairs per chunk.
+  EXPECT_GE(chunked.num_matching_chunks, 12);
+  EXPECT_GT(chunked.num_descriptor_reads, 9);
+  EXPECT_EQ(chunked.num_matches, all_at_once.num_matches);
+  EXPECT_EQ(chunked.num_verified_pairs, all_at_once.num_verified_pairs);
+  EXPECT_EQ(chunked.num_verified_matches, all_at_once.num_verified_matches);
+  const auto read_file = [](const fs::path& path) {
+    std::ifstream stream(path, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(stream), std::istreambuf_iterator<char>());
+  };
+  EXPECT_EQ(read_file(temp / "chunked" / "points3D.bin"), read_file(temp / "all" / "points3D.bin"));
 }
 
 TEST(MapTriangulation, BadInputsAreNamed) {
