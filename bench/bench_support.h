@@ -14,12 +14,18 @@ void Step(const std::string& message);
 
 struct ChildRun {
   double seconds = 0;
+  // The child's ru_maxrss, which counts this process's pages shared between fork and exec: a
+  // child's own peak only when it is above this process's resident memory (ProgramPeakMegabytes
+  // measures any program).
   double peak_rss_mb = 0;
 };
 
 // Runs `args` (args[0] found on PATH) with stdout and stderr into `log`; throws
 // std::runtime_error with the log's tail when it cannot start or exits non-zero.
 ChildRun RunChild(const std::vector<std::string>& args, const std::filesystem::path& log);
+// The peak resident memory of `args` alone, run from a small python3 process (its output into
+// `log`); throws as RunChild does.
+double ProgramPeakMegabytes(const std::vector<std::string>& args, const std::filesystem::path& log);
 // Whether `program` is on PATH.
 bool CanRun(const std::string& program);
 

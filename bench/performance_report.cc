@@ -408,7 +408,19 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
     md << "\nThe server is measured as an operator starts it (`hscloc serve --map`, the network "
           "matcher, one worker per core) once it listens, before any request; the process with "
           "no map is `hscloc --version`: the binary with its libraries (libtorch among them) "
-          "loaded.\n\n";
+          "loaded.";
+    std::vector<std::string> remeasured;
+    std::string how;
+    for (const json& row : results["scale"]) {
+      if (!row.contains("process_baseline_remeasured")) continue;
+      remeasured.push_back(row["preset"].get<std::string>());
+      how = row["process_baseline_remeasured"].get<std::string>();
+    }
+    if (!remeasured.empty()) {
+      md << fmt::format(" The process with no map ({}) was measured apart from the run: {}.",
+                        fmt::join(remeasured, ", "), how);
+    }
+    md << "\n\n";
   }
   md << "## Micro-benchmarks\n\nGoogle Benchmark executables in `build/bench/`, run by hand: "
         "`hscloc_network_benchmark` (Predict at the Aachen shape with per-level times, training "
