@@ -48,32 +48,36 @@ struct CellMaps {
   std::vector<float> reliability;  // cells_y x cells_x
 };
 
-// For each cell along an axis of the canvas, the tile it takes its outputs from.
-std::vector<int> CellTiles(const std::vector<int>& origins, int cells) {
-  std::vector<int> tiles(cells);
+// Cells [begin, end) along an axis of the canvas.
+struct CellRange {
+  int begin = 0;
+  int end = 0;
+};
+
+// For each tile along an axis, the cells that take their outputs from it: those nearest to its
+// centre, one contiguous range per tile since the tiles are in order.
+std::vector<CellRange> OwnedCells(const std::vector<int>& origins, int cells) {
+  std::vector<CellRange> owned(origins.size());
   for (int c = 0; c < cells; ++c) {
-    tiles[c] = NearestTile(origins, kInputSize, (c + 0.5f) * kCellSize);
+    CellRange& range = owned[NearestTile(origins, kInputSize, (c + 0.5f) * kCellSize)];
+    if (range.begin == range.end) range.begin = c;
+    range.end = c + 1;
   }
-  return tiles;
+  return owned;
 }
 
-// Copies the cells of `tile_output` (channels x kCells x kCells, the tile at origin_x, origin_y)
-// that belong to the tile into `canvas` (channels x cells_y x cells_x).
-void CopyTileCells(const cv::Mat& tile_output, int channels, int origin_x, int origin_y,
-                   const std::vector<bool>& column_taken, const std::vector<bool>& row_taken,
-                   int cells_x, float* canvas) {
-  const int cells_y = static_cast<int>(row_taken.size());
+// Copies the cells `columns` x `rows` (canvas cells) of `tile_output` (channels x kCells x kCells,
+// the tile at canvas pixel origin_x, origin_y) into `canvas` (channels x cells_y x cells_x).
+void CopyOwnedCells(const cv::Mat& tile_output, int channels, int origin_x, int origin_y,
+                    CellRange columns, CellRange rows, int cells_x, int cells_y, float* canvas) {
   const float* tile = tile_output.ptr<float>();
   const int tile_cx = origin_x / kCellSize, tile_cy = origin_y / kCellSize;
   for (int channel = 0; channel < channels; ++channel) {
-    for (int cy = 0; cy < kCells; ++cy) {
-      if (!row_taken[tile_cy + cy]) continue;
-      const float* from = tile + (static_cast<int64_t>(channel) * kCells + cy) * kCells;
-      float* to =
-          canvas + (static_cast<int64_t>(channel) * cells_y + tile_cy + cy) * cells_x + tile_cx;
-      for (int cx = 0; cx < kCells; ++cx) {
-        if (column_taken[tile_cx + cx]) to[cx] = from[cx];
-      }
+    for (int cy = rows.begin; cy < rows.end; ++cy) {
+      const float* from = tile + (static_cast<int64_t>(channel) * kCells + cy - tile_cy) * kCells +
+                          (columns.begin - tile_cx);
+      float* to = canvas + (static_cast<int64_t>(channel) * cells_y + cy) * cells_x;
+      std::copy(from, from + (columns.end - columns.begin), to + columns.begin);
     }
   }
 }
@@ -188,10 +192,10 @@ CellMaps RunOnTiles(cv::dnn::Net& net, const std::string& model_path, const cv::
   CellMaps maps(canvas.cols / kCellSize, canvas.rows / kCellSize);
   const std::vector<int> origins_x = TileOrigins(canvas.cols, kInputSize, kTileOverlap, kCellSize);
   const std::vector<int> origins_y = TileOrigins(canvas.rows, kInputSize, kTileOverlap, kCellSize);
-  const std::vector<int> tile_of_column = CellTiles(origins_x, maps.cells_x);
-  const std::vector<int> tile_of_row = CellTiles(origins_y, maps.cells_y);
-  for (int ty = 0; ty < static_cast<int>(origins_y.size()); ++ty) {
-    for (int tx = 0; tx < static_cast<int>(origins_x.size()); ++tx) {
+  const std::vector<CellRange> owned_columns = OwnedCells(origins_x, maps.cells_x);
+  const std::vector<CellRange> owned_rows = OwnedCells(origins_y, maps.cells_y);
+  for (size_t ty = 0; ty < origins_y.size(); ++ty) {
+    for (size_t tx = 0; tx < origins_x.size(); ++tx) {
       const cv::Rect tile(origins_x[tx], origins_y[ty], kInputSize, kInputSize);
       net.setInput(cv::dnn::blobFromImage(canvas(tile), 1.0 / 255, cv::Size(), cv::Scalar(),
                                           /*swapRB=*/true));
@@ -205,15 +209,13 @@ CellMaps RunOnTiles(cv::dnn::Net& net, const std::string& model_path, const cv::
       CheckShape(outputs[0], {1, kDimension, kCells, kCells}, kOutputNames[0], model_path);
       CheckShape(outputs[1], {1, kBins, kCells, kCells}, kOutputNames[1], model_path);
       CheckShape(outputs[2], {1, 1, kCells, kCells}, kOutputNames[2], model_path);
-      std::vector<bool> column_taken(maps.cells_x), row_taken(maps.cells_y);
-      for (int c = 0; c < maps.cells_x; ++c) column_taken[c] = tile_of_column[c] == tx;
-      for (int c = 0; c < maps.cells_y; ++c) row_taken[c] = tile_of_row[c] == ty;
-      CopyTileCells(outputs[0], kDimension, tile.x, tile.y, column_taken, row_taken, maps.cells_x,
-                    maps.descriptors.data());
-      CopyTileCells(outputs[1], kBins, tile.x, tile.y, column_taken, row_taken, maps.cells_x,
-                    maps.logits.data());
-      CopyTileCells(outputs[2], 1, tile.x, tile.y, column_taken, row_taken, maps.cells_x,
-                    maps.reliability.data());
+      const auto copy = [&](const cv::Mat& output, int channels, std::vector<float>* into) {
+        CopyOwnedCells(output, channels, tile.x, tile.y, owned_columns[tx], owned_rows[ty],
+                       maps.cells_x, maps.cells_y, into->data());
+      };
+      copy(outputs[0], kDimension, &maps.descriptors);
+      copy(outputs[1], kBins, &maps.logits);
+      copy(outputs[2], 1, &maps.reliability);
     }
   }
   return maps;
