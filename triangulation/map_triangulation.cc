@@ -55,8 +55,8 @@ std::map<image_t, ImageData> ReadImageFeatures(const Reconstruction& model,
         size && !(*size == PhotoSize{static_cast<int64_t>(camera.width),
                                      static_cast<int64_t>(camera.height)})) {
       ThrowInvalidArgument(
-          "{}, image '{}': the features come from a photo of {} x {} pixels, its camera (camera "
-          "{}) is {} x {}: the features come from photos of another size",
+          "{}, image '{}': the features come from a photo of {} x {} pixels but its camera (camera "
+          "{}) is {} x {}: extract the features from photos of the camera's size",
           reader.path().string(), image.name, size->width, size->height, camera.camera_id,
           camera.width, camera.height);
     }
@@ -65,7 +65,7 @@ std::map<image_t, ImageData> ReadImageFeatures(const Reconstruction& model,
       if (!camera.IsInside(pixel)) {
         ThrowInvalidArgument(
             "{}, image '{}': keypoint {} at ({:.1f}, {:.1f}) px lies outside its camera's {} x {} "
-            "pixels (camera {}): the features come from photos of another size",
+            "pixels (camera {}): the features come from photos of another size than the model's",
             reader.path().string(), image.name, i, pixel.x(), pixel.y(), camera.width,
             camera.height, camera.camera_id);
       }
