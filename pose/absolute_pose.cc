@@ -165,6 +165,36 @@ AbsolutePoseResult Fail(AbsolutePoseResult result, std::string reason) {
   return result;
 }
 
+// What follows a pose hypothesis: its exact inliers, the refinement, and the verdict.
+AbsolutePoseResult FinishFromPose(const Camera& camera,
+                                  const std::vector<Eigen::Vector2d>& keypoints_px,
+                                  const std::vector<Eigen::Vector3d>& points_in_world,
+                                  const Rigid3d& cam_from_world, const AbsolutePoseOptions& options,
+                                  AbsolutePoseResult result) {
+  RefinedPose pose;
+  pose.cam_from_world = cam_from_world;
+  pose.inliers = FindPixelInliers(camera, keypoints_px, points_in_world, pose.cam_from_world,
+                                  options.max_reprojection_error_px);
+  result.ransac_num_inliers = static_cast<int>(pose.inliers.indices.size());
+  if (options.refine) {
+    pose = RefineWhileInliersGrow(camera, keypoints_px, points_in_world, std::move(pose), options);
+  }
+  result.cam_from_world = pose.cam_from_world;
+  result.refined = pose.refined;
+  result.inlier_mask = std::move(pose.inliers.mask);
+  result.num_inliers = static_cast<int>(pose.inliers.indices.size());
+  result.mean_inlier_error_px = pose.inliers.mean_error_px;
+  if (result.num_inliers < options.min_inliers) {
+    return Fail(
+        std::move(result),
+        fmt::format("the best pose has {} inliers within {} px, fewer than "
+                    "min_inliers = {}",
+                    result.num_inliers, options.max_reprojection_error_px, options.min_inliers));
+  }
+  result.success = true;
+  return result;
+}
+
 }  // namespace
 
 void AbsolutePoseOptions::Check() const {
@@ -233,28 +263,26 @@ AbsolutePoseResult EstimateAbsolutePose(const Camera& camera,
                 "matches, or degenerate geometry such as collinear points)");
   }
 
-  RefinedPose pose;
-  pose.cam_from_world = outcome.cam_from_world;
-  pose.inliers = FindPixelInliers(camera, keypoints_px, points_in_world, pose.cam_from_world,
-                                  options.max_reprojection_error_px);
-  result.ransac_num_inliers = static_cast<int>(pose.inliers.indices.size());
-  if (options.refine) {
-    pose = RefineWhileInliersGrow(camera, keypoints_px, points_in_world, std::move(pose), options);
+  return FinishFromPose(camera, keypoints_px, points_in_world, outcome.cam_from_world, options,
+                        std::move(result));
+}
+
+AbsolutePoseResult RefineAbsolutePoseFrom(const Camera& camera,
+                                          const std::vector<Eigen::Vector2d>& keypoints_px,
+                                          const std::vector<Eigen::Vector3d>& points_in_world,
+                                          const Rigid3d& initial_cam_from_world,
+                                          const AbsolutePoseOptions& options) {
+  options.Check();
+  camera.Check();
+  CheckCorrespondences(keypoints_px, points_in_world);
+  if (!initial_cam_from_world.rotation.coeffs().allFinite() ||
+      !initial_cam_from_world.translation.allFinite()) {
+    ThrowInvalidArgument("RefineAbsolutePoseFrom: the initial pose is not finite");
   }
-  result.cam_from_world = pose.cam_from_world;
-  result.refined = pose.refined;
-  result.inlier_mask = std::move(pose.inliers.mask);
-  result.num_inliers = static_cast<int>(pose.inliers.indices.size());
-  result.mean_inlier_error_px = pose.inliers.mean_error_px;
-  if (result.num_inliers < options.min_inliers) {
-    return Fail(
-        std::move(result),
-        fmt::format("the best pose has {} inliers within {} px, fewer than "
-                    "min_inliers = {}",
-                    result.num_inliers, options.max_reprojection_error_px, options.min_inliers));
-  }
-  result.success = true;
-  return result;
+  AbsolutePoseResult result;
+  result.inlier_mask.assign(keypoints_px.size(), 0);
+  return FinishFromPose(camera, keypoints_px, points_in_world, initial_cam_from_world, options,
+                        std::move(result));
 }
 
 }  // namespace hscloc

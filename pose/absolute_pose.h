@@ -70,7 +70,8 @@ struct AbsolutePoseResult {
   // camera within max_reprojection_error_px of its keypoint (exact, through the camera model).
   std::vector<char> inlier_mask;
   int num_inliers = 0;
-  // Inliers of the RANSAC pose before refinement (same exact test).
+  // Inliers of the RANSAC pose (RefineAbsolutePoseFrom: the initial pose) before refinement (same
+  // exact test).
   int ransac_num_inliers = 0;
   // Minimal samples drawn; -1 for kOpenCvUsac, which does not report it.
   int num_iterations = 0;
@@ -94,5 +95,15 @@ AbsolutePoseResult EstimateAbsolutePose(const Camera& camera,
                                         const std::vector<Eigen::Vector2d>& keypoints_px,
                                         const std::vector<Eigen::Vector3d>& points_in_world,
                                         const AbsolutePoseOptions& options);
+
+// The end of EstimateAbsolutePose from a known pose instead of RANSAC's: the inliers of
+// `initial_cam_from_world`, refined as options.refine says, and the same verdict (success with
+// min_inliers inliers). For correspondences chosen once a pose is known, e.g. among rival matches.
+// Throws std::invalid_argument as EstimateAbsolutePose does, and for a non-finite initial pose.
+AbsolutePoseResult RefineAbsolutePoseFrom(const Camera& camera,
+                                          const std::vector<Eigen::Vector2d>& keypoints_px,
+                                          const std::vector<Eigen::Vector3d>& points_in_world,
+                                          const Rigid3d& initial_cam_from_world,
+                                          const AbsolutePoseOptions& options);
 
 }  // namespace hscloc

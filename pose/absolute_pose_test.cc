@@ -5,6 +5,8 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <thread>
 #include <utility>
@@ -247,6 +249,49 @@ TEST(AbsolutePose, RefinementImprovesOnTheMinimalSolverPose) {
   }
   EXPECT_LT(Mean(refined_rotation), 0.25 * Mean(minimal_rotation));
   EXPECT_LT(Mean(refined_position), 0.25 * Mean(minimal_position));
+}
+
+// From a pose a few pixels off (0.2 deg and 5 cm from the truth), the refinement alone recovers the
+// truth as RANSAC and refinement do; from a pose that sees none of the matches it fails.
+TEST(AbsolutePose, RefinesFromAGivenPose) {
+  Random random(12);
+  for (const char* model : {"SIMPLE_RADIAL", "OPENCV"}) {
+    for (int trial = 0; trial < 10; ++trial) {
+      const Correspondences data =
+          MakeCorrespondences(RandomCamera(model, random), 150, 100, 1.0, random);
+      const Eigen::Vector3d axis =
+          Eigen::Vector3d(random.Normal(), random.Normal(), random.Normal()).normalized();
+      const Rigid3d start(data.cam_from_world.rotation *
+                              Eigen::Quaterniond(Eigen::AngleAxisd(0.2 * M_PI / 180, axis)),
+                          data.cam_from_world.translation + 0.05 * axis);
+      const AbsolutePoseResult refined = RefineAbsolutePoseFrom(
+          data.camera, data.keypoints_px, data.points_in_world, start, AbsolutePoseOptions());
+      const AbsolutePoseResult estimated = Estimate(data, AbsolutePoseOptions());
+      ASSERT_TRUE(refined.success) << model << ": " << refined.failure_reason;
+      ASSERT_TRUE(estimated.success) << model << ": " << estimated.failure_reason;
+      EXPECT_TRUE(refined.refined);
+      EXPECT_EQ(refined.num_iterations, 0);
+      EXPECT_THAT(refined.cam_from_world, PoseNear(data.cam_from_world, 0.02, 0.1)) << model;
+      // Both stop where Ceres deems the cost flat, a few millimetres apart.
+      EXPECT_THAT(refined.cam_from_world, PoseNear(estimated.cam_from_world, 0.005, 0.02)) << model;
+      EXPECT_NEAR(refined.num_inliers, estimated.num_inliers, 2) << model;
+      EXPECT_EQ(std::count(refined.inlier_mask.begin(), refined.inlier_mask.end(), 1),
+                refined.num_inliers);
+    }
+  }
+  const Correspondences data =
+      MakeCorrespondences(RandomCamera("PINHOLE", random), 150, 0, 1.0, random);
+  const AbsolutePoseResult lost =
+      RefineAbsolutePoseFrom(data.camera, data.keypoints_px, data.points_in_world,
+                             data.cam_from_world.Inverse(), AbsolutePoseOptions());
+  EXPECT_FALSE(lost.success);
+  EXPECT_THAT(lost.failure_reason, HasSubstr("fewer than min_inliers"));
+  EXPECT_EQ(lost.inlier_mask.size(), 150u);
+  Rigid3d not_finite = data.cam_from_world;
+  not_finite.translation.x() = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(RefineAbsolutePoseFrom(data.camera, data.keypoints_px, data.points_in_world,
+                                      not_finite, AbsolutePoseOptions()),
+               std::invalid_argument);
 }
 
 TEST(AbsolutePose, FailsWithAReasonOnTooFewCorrespondences) {
