@@ -5,9 +5,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <unordered_map>
 #include <utility>
 
+#include "localization/rival_matches.h"
 #include "util/check.h"
 #include "util/timer.h"
 
@@ -172,7 +172,10 @@ PoseResult Localizer::Localize(const LocalizationQuery& query) const {
 // What EvaluateCandidates fills in as candidates are matched and posed.
 struct Localizer::Evaluation {
   PoseResult result;
-  std::vector<CandidateMatches> matches;        // one per candidate, after FilterVisible
+  // One per candidate, after FilterVisible: every prediction, rivals for a point included (for
+  // RefineRoundWinner; empty where the matcher has no rivals or the options keep every keypoint).
+  std::vector<CandidateMatches> predictions;
+  std::vector<CandidateMatches> matches;        // one per candidate, as posed
   std::vector<std::vector<char>> inlier_masks;  // one per candidate, empty until posed
 };
 
@@ -267,29 +270,13 @@ std::vector<CandidateMatches> Localizer::Match(const LocalizationQuery& query,
       query.descriptors, images, map_->label_tree(), masked ? &map_->visibility() : nullptr);
   for (size_t k = begin; k < end; ++k) {
     const int64_t row = options.use_image_id ? static_cast<int64_t>(k - begin) : 0;
-    // The most confident keypoint of each predicted point, when a point takes one keypoint only.
-    std::unordered_map<int64_t, int64_t> keypoint_of_point;
+    CandidateMatches& candidate_matches = matches[k - begin];
     for (int64_t keypoint = 0; keypoint < query.descriptors.rows(); ++keypoint) {
       const int64_t point = predictions.point_indices(row, keypoint);
       if (point < 0) continue;
-      if (options.one_keypoint_per_point) {
-        const float confidence = predictions.confidences(row, keypoint);
-        auto [it, inserted] = keypoint_of_point.emplace(point, keypoint);
-        if (!inserted && predictions.confidences(row, it->second) < confidence) {
-          it->second = keypoint;
-        }
-        continue;
-      }
-      matches[k - begin].keypoints.push_back(static_cast<int>(keypoint));
-      matches[k - begin].point_indices.push_back(static_cast<uint32_t>(point));
-    }
-    // In keypoint order, as without the rule, so that RANSAC's samples do not follow the hash.
-    std::vector<std::pair<int64_t, int64_t>> kept;
-    for (const auto& [point, keypoint] : keypoint_of_point) kept.emplace_back(keypoint, point);
-    std::sort(kept.begin(), kept.end());
-    for (const auto& [keypoint, point] : kept) {
-      matches[k - begin].keypoints.push_back(static_cast<int>(keypoint));
-      matches[k - begin].point_indices.push_back(static_cast<uint32_t>(point));
+      candidate_matches.keypoints.push_back(static_cast<int>(keypoint));
+      candidate_matches.point_indices.push_back(static_cast<uint32_t>(point));
+      candidate_matches.confidences.push_back(predictions.confidences(row, keypoint));
     }
   }
   return matches;
@@ -301,30 +288,69 @@ CandidateMatches Localizer::FilterVisible(uint32_t image_index, CandidateMatches
     if (map_->visibility().IsVisible(image_index, matches.point_indices[i])) {
       matches.keypoints[kept] = matches.keypoints[i];
       matches.point_indices[kept] = matches.point_indices[i];
+      if (!matches.confidences.empty()) matches.confidences[kept] = matches.confidences[i];
       ++kept;
     }
   }
   matches.keypoints.resize(kept);
   matches.point_indices.resize(kept);
+  if (!matches.confidences.empty()) matches.confidences.resize(kept);
   return matches;
+}
+
+std::vector<Eigen::Vector2d> Localizer::KeypointPixels(const LocalizationQuery& query,
+                                                       const CandidateMatches& matches) {
+  std::vector<Eigen::Vector2d> pixels;
+  pixels.reserve(matches.size());
+  for (const int keypoint : matches.keypoints) {
+    pixels.push_back(query.keypoints.row(keypoint).transpose().cast<double>());
+  }
+  return pixels;
+}
+
+std::vector<Eigen::Vector3d> Localizer::PointPositions(const CandidateMatches& matches) const {
+  std::vector<Eigen::Vector3d> positions;
+  positions.reserve(matches.size());
+  for (const uint32_t point : matches.point_indices) {
+    positions.push_back(map_->scene().points[point]);
+  }
+  return positions;
 }
 
 AbsolutePoseResult Localizer::Pose(const LocalizationQuery& query, const CandidateMatches& matches,
                                    const LocalizerOptions& options) const {
-  std::vector<Eigen::Vector2d> keypoints_px;
-  std::vector<Eigen::Vector3d> points_in_world;
-  keypoints_px.reserve(matches.size());
-  points_in_world.reserve(matches.size());
-  for (size_t i = 0; i < matches.size(); ++i) {
-    keypoints_px.push_back(query.keypoints.row(matches.keypoints[i]).transpose().cast<double>());
-    points_in_world.push_back(map_->scene().points[matches.point_indices[i]]);
-  }
-  return EstimateAbsolutePose(query.camera, keypoints_px, points_in_world, options.pose);
+  return EstimateAbsolutePose(query.camera, KeypointPixels(query, matches), PointPositions(matches),
+                              options.pose);
 }
 
-int Localizer::Choose(const std::vector<LocalizationCandidate>& candidates) {
+void Localizer::RefineRoundWinner(const LocalizationQuery& query, const LocalizerOptions& options,
+                                  size_t begin, Evaluation& evaluation) const {
+  const std::vector<LocalizationCandidate>& candidates = evaluation.result.candidates;
+  const int round_best = Choose(candidates, begin);
+  if (round_best < 0) return;
+  const auto best = static_cast<size_t>(round_best);
+  const CandidateMatches& predictions = evaluation.predictions[best];
+  LocalizationCandidate& candidate = evaluation.result.candidates[best];
+  // No rivals: every point had one keypoint, or the matcher or options left none.
+  if (predictions.size() == 0 || predictions.size() == evaluation.matches[best].size()) return;
+  CandidateMatches nearest = NearestKeypointPerPoint(
+      predictions, query.keypoints, query.camera, candidate.cam_from_world, map_->scene().points);
+  if (nearest.keypoints == evaluation.matches[best].keypoints) return;
+  AbsolutePoseResult pose =
+      RefineAbsolutePoseFrom(query.camera, KeypointPixels(query, nearest), PointPositions(nearest),
+                             candidate.cam_from_world, options.pose);
+  // Re-choosing by reprojection keeps every inlier of the pose it starts from (a point's nearest
+  // rival is within the threshold when any is); fewer after refinement means it went astray.
+  if (!pose.success || pose.num_inliers < candidate.num_inliers) return;
+  candidate.num_inliers = pose.num_inliers;
+  candidate.cam_from_world = pose.cam_from_world;
+  evaluation.matches[best] = std::move(nearest);
+  evaluation.inlier_masks[best] = std::move(pose.inlier_mask);
+}
+
+int Localizer::Choose(const std::vector<LocalizationCandidate>& candidates, size_t begin) {
   int best = -1;
-  for (size_t k = 0; k < candidates.size(); ++k) {
+  for (size_t k = begin; k < candidates.size(); ++k) {
     if (candidates[k].pose_found &&
         (best < 0 || candidates[k].num_inliers > candidates[best].num_inliers)) {
       best = static_cast<int>(k);
@@ -351,8 +377,15 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
       if (options.visibility_filter) {
         candidate_matches = FilterVisible(candidates[k].image_index, std::move(candidate_matches));
       }
-      candidates[k].num_matches = static_cast<int>(candidate_matches.size());
-      evaluation.matches[k] = std::move(candidate_matches);
+      // A point is seen once in an image: its most confident keypoint stands for it until a pose
+      // is known (RefineRoundWinner).
+      if (options.one_keypoint_per_point && !candidate_matches.confidences.empty()) {
+        evaluation.matches[k] = MostConfidentKeypointPerPoint(candidate_matches);
+        evaluation.predictions[k] = std::move(candidate_matches);
+      } else {
+        evaluation.matches[k] = std::move(candidate_matches);
+      }
+      candidates[k].num_matches = static_cast<int>(evaluation.matches[k].size());
     }
   }
   ScopedTimer timer(&timings.pose_ms);
@@ -371,19 +404,22 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
 void Localizer::EvaluateRound(const LocalizationQuery& query, const LocalizerOptions& options,
                               size_t begin, Evaluation& evaluation) const {
   const size_t end = evaluation.result.candidates.size();
+  evaluation.predictions.resize(end);
   evaluation.matches.resize(end);
   evaluation.inlier_masks.resize(end);
   if (begin >= end) return;
   if (options.candidate_search == CandidateSearch::kAll) {
     EvaluateCandidates(query, options, begin, end, /*stop_when_accepted=*/false, evaluation);
-    return;
+  } else {
+    // The first candidate alone: when retrieval is right it settles the query, and the network
+    // runs on one image id instead of K. The rest follow as one batch only when it does not.
+    EvaluateCandidates(query, options, begin, begin + 1, /*stop_when_accepted=*/false, evaluation);
+    if (evaluation.result.candidates[begin].num_inliers < options.accept_candidate_inliers) {
+      EvaluateCandidates(query, options, begin + 1, end, /*stop_when_accepted=*/true, evaluation);
+    }
   }
-  // The first candidate alone: when retrieval is right it settles the query, and the network
-  // runs on one image id instead of K. The rest follow as one batch only when it does not.
-  EvaluateCandidates(query, options, begin, begin + 1, /*stop_when_accepted=*/false, evaluation);
-  if (evaluation.result.candidates[begin].num_inliers < options.accept_candidate_inliers) {
-    EvaluateCandidates(query, options, begin + 1, end, /*stop_when_accepted=*/true, evaluation);
-  }
+  ScopedTimer timer(&evaluation.result.timings.pose_ms);
+  RefineRoundWinner(query, options, begin, evaluation);
 }
 
 PoseResult Localizer::Localize(const LocalizationQuery& query,

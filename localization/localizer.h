@@ -10,7 +10,10 @@
 //                  ids as one batch); or, as the explicit-matching baseline, mutual nearest
 //                  neighbours with a ratio test against each candidate's observations
 //   FilterVisible  matches to points the candidate image does not observe are dropped
-//   Pose           PnP-RANSAC and refinement per candidate
+//   Pose           PnP-RANSAC and refinement per candidate (of the keypoints the network sends
+//                  to one point, the most confident); then, for the round's best candidate, of
+//                  those rival keypoints the one its pose reprojects nearest, and the pose
+//                  refined again on them
 //   Choose         the candidate pose with the most inliers wins
 // Thread-safe: any number of threads may call Localize concurrently on one Localizer.
 #pragma once
@@ -81,9 +84,9 @@ struct LocalizerOptions {
   // Restrict the network's choices at each level to subtrees the candidate image observes. A
   // network trained for it (NetworkOptions::masked_decoding) is always decoded so.
   bool visibility_masked_decoding = false;
-  // Of the keypoints the network sends to one point, keep only the most confident (its confidence:
-  // the product of the chosen labels' probabilities), since a point is seen once in an image; off,
-  // every prediction is a match (the paper).
+  // Of the keypoints the network sends to one point, keep one, since a point is seen once in an
+  // image: the most confident (the product of the chosen labels' probabilities) for RANSAC, then
+  // the one the winning pose reprojects nearest. Off, every prediction is a match (the paper).
   bool one_keypoint_per_point = true;
   CandidateSearch candidate_search = CandidateSearch::kAll;
   // Inliers with which kUntilAccepted accepts a candidate and stops.
@@ -188,6 +191,14 @@ class Localizer {
   CandidateMatches FilterVisible(uint32_t image_index, CandidateMatches matches) const;
   AbsolutePoseResult Pose(const LocalizationQuery& query, const CandidateMatches& matches,
                           const LocalizerOptions& options) const;
+  // The pose of the round's best candidate (of [begin, end)) refined once more, each point now
+  // taking the rival keypoint the pose reprojects nearest (rival_matches.h); kept when it has at
+  // least as many inliers.
+  void RefineRoundWinner(const LocalizationQuery& query, const LocalizerOptions& options,
+                         size_t begin, Evaluation& evaluation) const;
+  static std::vector<Eigen::Vector2d> KeypointPixels(const LocalizationQuery& query,
+                                                     const CandidateMatches& matches);
+  std::vector<Eigen::Vector3d> PointPositions(const CandidateMatches& matches) const;
   // The candidates of one retrieval round evaluated as the options' candidate search says.
   void EvaluateRound(const LocalizationQuery& query, const LocalizerOptions& options, size_t begin,
                      Evaluation& evaluation) const;
@@ -196,8 +207,9 @@ class Localizer {
   void EvaluateCandidates(const LocalizationQuery& query, const LocalizerOptions& options,
                           size_t begin, size_t end, bool stop_when_accepted,
                           Evaluation& evaluation) const;
-  // The candidate with the most inliers among those posed successfully; -1 when none.
-  static int Choose(const std::vector<LocalizationCandidate>& candidates);
+  // The candidate with the most inliers among those from `begin` on posed successfully; -1 when
+  // none.
+  static int Choose(const std::vector<LocalizationCandidate>& candidates, size_t begin = 0);
 
   std::shared_ptr<const LocalizationMap> map_;
   std::shared_ptr<const Network> network_;

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <set>
 
@@ -96,7 +97,9 @@ TEST_F(SmallCityLocalizerTest, TheVotesRoundFollowsOnlyAFirstRoundBelowTheThresh
   EXPECT_EQ(candidates_with_threshold(0), 10u);
 }
 
-TEST_F(SmallCityLocalizerTest, EachPredictedPointKeepsItsMostConfidentKeypoint) {
+// Of the keypoints the network sends to one point (rivals), the winner keeps one: the one its pose
+// reprojects nearest.
+TEST_F(SmallCityLocalizerTest, EachPredictedPointKeepsTheRivalItsPoseReprojectsNearest) {
   const Network& network = *localizer().network();
   const bool masked = network.options().masked_decoding;
   LocalizerOptions every_keypoint;
@@ -112,21 +115,36 @@ TEST_F(SmallCityLocalizerTest, EachPredictedPointKeepsItsMostConfidentKeypoint) 
     const PointPredictions predictions =
         network.Predict(query.descriptors, {image}, localizer().map().label_tree(),
                         masked ? &localizer().map().visibility() : nullptr);
-    // Per point the network predicted in this image (and the image observes), its most
-    // confident keypoint.
-    std::map<uint32_t, std::pair<float, int>> best_keypoint;
+    // Per point the network predicted in this image (and the image observes), its rivals' pixel
+    // distances from where the result's pose reprojects it.
+    const auto in_camera = [&](uint32_t point) {
+      return result.cam_from_world * localizer().map().scene().points[point];
+    };
+    const auto distance = [&](int keypoint, uint32_t point) {
+      return (query.camera.ImgFromPointInCam(in_camera(point)) -
+              query.keypoints.row(keypoint).transpose().cast<double>())
+          .norm();
+    };
+    std::map<uint32_t, std::vector<int>> rivals;
     for (int keypoint = 0; keypoint < predictions.num_descriptors; ++keypoint) {
       const int64_t point = predictions.point_indices(0, keypoint);
       if (point < 0 || !localizer().map().visibility().IsVisible(image, point)) continue;
-      const float confidence = predictions.confidences(0, keypoint);
-      auto [it, inserted] = best_keypoint.emplace(point, std::make_pair(confidence, keypoint));
-      if (!inserted && confidence > it->second.first) it->second = {confidence, keypoint};
+      rivals[point].push_back(keypoint);
     }
-    ASSERT_EQ(result.match_points.size(), best_keypoint.size());
+    ASSERT_EQ(result.match_points.size(), rivals.size());
     for (size_t i = 0; i < result.match_points.size(); ++i) {
-      const auto found = best_keypoint.find(result.match_points[i]);
-      ASSERT_NE(found, best_keypoint.end());
-      EXPECT_FLOAT_EQ(predictions.confidences(0, result.match_keypoints[i]), found->second.first);
+      const uint32_t point = result.match_points[i];
+      const auto found = rivals.find(point);
+      ASSERT_NE(found, rivals.end());
+      ASSERT_THAT(found->second, ::testing::Contains(result.match_keypoints[i]));
+      // Behind the camera no rival is nearer; confidence chose.
+      if (!(in_camera(point).z() > 0)) continue;
+      double nearest = std::numeric_limits<double>::infinity();
+      for (const int keypoint : found->second)
+        nearest = std::min(nearest, distance(keypoint, point));
+      // Chosen at the pose before its last refinement, which moves reprojections by far less than
+      // the clutter's spacing.
+      EXPECT_LE(distance(result.match_keypoints[i], point), nearest + 1.0);
     }
     const PoseResult all = localizer().Localize(query, every_keypoint);
     if (all.success) {

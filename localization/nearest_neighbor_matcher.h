@@ -15,6 +15,9 @@ namespace hscloc {
 struct CandidateMatches {
   std::vector<int> keypoints;
   std::vector<uint32_t> point_indices;
+  // The network's confidence in each match (PointPredictions::confidences); empty for matchers
+  // without one.
+  std::vector<float> confidences;
 
   size_t size() const { return keypoints.size(); }
 };

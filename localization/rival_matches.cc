@@ -1,0 +1,72 @@
+#include "localization/rival_matches.h"
+
+#include <algorithm>
+#include <cmath>
+#include <unordered_map>
+#include <utility>
+
+#include "util/check.h"
+
+namespace hscloc {
+namespace {
+
+// The match `score` ranks highest for each point (ties: the first), in keypoint order.
+template <typename Score>
+CandidateMatches BestKeypointPerPoint(const CandidateMatches& predictions, Score score) {
+  std::unordered_map<uint32_t, size_t> best_of_point;
+  std::vector<double> scores(predictions.size());
+  for (size_t i = 0; i < predictions.size(); ++i) {
+    scores[i] = score(i);
+    auto [it, inserted] = best_of_point.emplace(predictions.point_indices[i], i);
+    if (!inserted && scores[it->second] < scores[i]) it->second = i;
+  }
+  std::vector<size_t> kept;
+  kept.reserve(best_of_point.size());
+  for (const auto& [point, match] : best_of_point) kept.push_back(match);
+  std::sort(kept.begin(), kept.end(), [&](size_t a, size_t b) {
+    return predictions.keypoints[a] != predictions.keypoints[b]
+               ? predictions.keypoints[a] < predictions.keypoints[b]
+               : a < b;
+  });
+  CandidateMatches chosen;
+  for (const size_t i : kept) {
+    chosen.keypoints.push_back(predictions.keypoints[i]);
+    chosen.point_indices.push_back(predictions.point_indices[i]);
+    chosen.confidences.push_back(predictions.confidences[i]);
+  }
+  return chosen;
+}
+
+void CheckConfidences(const CandidateMatches& predictions) {
+  THROW_CHECK_MSG(predictions.point_indices.size() == predictions.size() &&
+                      predictions.confidences.size() == predictions.size(),
+                  "{} keypoints, {} points and {} confidences: one each per match",
+                  predictions.size(), predictions.point_indices.size(),
+                  predictions.confidences.size());
+}
+
+}  // namespace
+
+CandidateMatches MostConfidentKeypointPerPoint(const CandidateMatches& predictions) {
+  CheckConfidences(predictions);
+  return BestKeypointPerPoint(predictions, [&](size_t i) { return predictions.confidences[i]; });
+}
+
+CandidateMatches NearestKeypointPerPoint(const CandidateMatches& predictions,
+                                         const KeypointMatrix& keypoints, const Camera& camera,
+                                         const Rigid3d& cam_from_world,
+                                         const std::vector<Eigen::Vector3d>& points) {
+  CheckConfidences(predictions);
+  // Rivals share their point: either it reprojects for all of them and nearer is better, or it
+  // lies behind the camera (or beyond the camera model) for all of them and confidence decides.
+  return BestKeypointPerPoint(predictions, [&](size_t i) -> double {
+    const Eigen::Vector3d point_in_cam = cam_from_world * points.at(predictions.point_indices[i]);
+    if (!(point_in_cam.z() > 0.0)) return predictions.confidences[i];
+    const Eigen::Vector2d keypoint =
+        keypoints.row(predictions.keypoints[i]).transpose().cast<double>();
+    const double distance = (camera.ImgFromPointInCam(point_in_cam) - keypoint).norm();
+    return std::isfinite(distance) ? -distance : predictions.confidences[i];
+  });
+}
+
+}  // namespace hscloc
