@@ -8,9 +8,10 @@ namespace hscloc::bench {
 
 struct BenchOptions {
   bool quick = false;
-  bool from_json = false;    // only rewrite the report from the JSON file's numbers
-  std::string scale_only;    // only measure this preset's scale row, into the existing JSON
-  double train_minutes = 0;  // training budget of --scale-only (0: the full run's)
+  bool from_json = false;       // only rewrite the report from the JSON file's numbers
+  std::string scale_only;       // only measure this preset's scale row, into the existing JSON
+  bool real_sets_only = false;  // only measure the real sets' peers rows, into the existing JSON
+  double train_minutes = 0;     // training budget of --scale-only (0: the full run's)
   std::filesystem::path work = "bench-work";
   std::filesystem::path data = HSCLOC_DEFAULT_DATA_DIR;
   std::filesystem::path report = "docs/performance.md";

@@ -116,7 +116,7 @@ json ComparePeers(const std::string& name, const fs::path& bundle, double train_
 }
 
 json RealSetPeers(const BenchOptions& options, const std::string& set, LocalFeature feature,
-                  double train_minutes) {
+                  std::optional<double> train_minutes) {
   const fs::path set_dir = options.data / set;
   const bool xfeat = feature == LocalFeature::kXFeat;
   const std::string name = xfeat ? set + ", XFeat" : set;
@@ -146,15 +146,19 @@ json RealSetPeers(const BenchOptions& options, const std::string& set, LocalFeat
          features.string(), "--images", (set_dir / "images").string(), "--out", model.string()},
         work / "triangulate.log");
   }
-  Step(fmt::format("{}: build-map and train for {} min", name, train_minutes));
+  Step(fmt::format("{}: build-map and train ({})", name,
+                   train_minutes ? fmt::format("{} min", *train_minutes) : "its own budget"));
   fs::remove_all(bundle);
   RunChild({options.hscloc, "build-map", "--model", model.string(), "--features", features.string(),
             "--out", bundle.string()},
            work / "build_map.log");
-  const ChildRun train = RunChild(
-      {options.hscloc, "train", "--map", bundle.string(), "--minutes",
-       fmt::format("{}", train_minutes), "--checkpoint", (work / "checkpoint.pt").string()},
-      work / "train.log");
+  std::vector<std::string> train_command = {options.hscloc, "train",
+                                            "--map",        bundle.string(),
+                                            "--checkpoint", (work / "checkpoint.pt").string()};
+  if (train_minutes) {
+    train_command.insert(train_command.end(), {"--minutes", fmt::format("{}", *train_minutes)});
+  }
+  const ChildRun train = RunChild(train_command, work / "train.log");
   const auto reader = OpenFeatureReader(features);
   const std::vector<QueryWithIntrinsics> list =
       ReadQueryList(set_dir / "queries_with_intrinsics.txt");

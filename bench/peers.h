@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -28,10 +29,11 @@ nlohmann::json ComparePeers(const std::string& name, const std::filesystem::path
                             const std::vector<NamedPose>& ground_truth,
                             const nlohmann::json& colmap);
 enum class LocalFeature { kSift, kXFeat };
-// A real set of the data directory: build-map, train for `train_minutes`, then ComparePeers.
+// A real set of the data directory: build-map, train for `train_minutes` (nullopt: `hscloc
+// train`'s own budget for the map, what a user gets), then ComparePeers.
 // SIFT: the set's own database and map, and COLMAP's registration beside; XFeat: `hscloc extract`
 // on its photos and `hscloc triangulate` from its map's poses first (named "SET, XFeat").
 nlohmann::json RealSetPeers(const BenchOptions& options, const std::string& set,
-                            LocalFeature feature, double train_minutes);
+                            LocalFeature feature, std::optional<double> train_minutes);
 
 }  // namespace hscloc::bench

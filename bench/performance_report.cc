@@ -308,7 +308,16 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
         "it (`matches_importer` + `image_registrator`, wall time per query; the map images' "
         "matches among themselves, which its registration needs, are made beforehand and not "
         "timed). Map on disk: what "
-        "each method must keep to localize.\n\n";
+        "each method must keep to localize. ";
+  md << (results.value("quick", false)
+             ? "Each real set's network trained for 20 s (--quick)."
+             : "Each real set's network trained as `hscloc train` trains without a budget: the "
+               "map's own, 5 % of the observations held out.");
+  if (results.contains("real_sets_measured")) {
+    md << fmt::format(" These rows were measured on {}, apart from the rest of the run.",
+                      results["real_sets_measured"].get<std::string>());
+  }
+  md << "\n\n";
   for (const json& peers : results["real_sets"]) md << PeersTable(peers);
   for (const json& row : results["scale"]) {
     if (!row.contains("peers")) continue;
