@@ -315,44 +315,31 @@ std::map<Matcher, RealSetCounts> LocalizeRealSet(
     const fs::path& data, int64_t iterations,
     const std::vector<std::pair<std::string, double>>& colmap_position_errors, double tolerance_m) {
   testing::TempDir temp;
-  MapBuildOptions build_options;
-  build_options.show_progress = false;
-  build_options.label_tree.show_progress = false;
-  BuildMap({data / "map", data / "database.db", std::nullopt}, build_options, temp / "map");
-  auto map = LocalizationMap::Load(temp / "map", {.load_observations = true});
-  TrainerOptions train_options;
-  // The widths `hscloc train` chooses for this map.
-  train_options.network = DefaultNetworkOptions(map->scene().NumPoints());
-  train_options.max_iterations = iterations;
-  train_options.holdout_fraction = 0;
-  train_options.show_progress = false;
-  TrainingResult training = TrainNetwork(map->scene(), map->label_tree(), train_options);
-  const auto network = std::make_shared<const Network>(std::move(training.network));
-  const Localizer localizer(map, network);
+  TrainerOptions training;
+  training.max_iterations = iterations;
+  training.holdout_fraction = 0;
+  const TrainedRealMap trained =
+      BuildAndTrainRealMap(data / "map", data / "database.db", temp / "map", training);
+  const Localizer localizer(trained.map, trained.network);
   const auto features = OpenColmapDatabaseFeatures(data / "database.db");
   const QuerySet set =
       ReadQuerySet(data / "queries_with_intrinsics.txt", *features, data / "queries_gt.txt");
+  const Scene& scene = trained.map->scene();
   std::cout << fmt::format("{}: {} images, {} points, {} observations; {} iterations in {:.1f} s\n",
-                           data.filename().string(), map->scene().NumImages(),
-                           map->scene().NumPoints(), map->scene().NumObservations(),
-                           training.iterations, training.seconds);
+                           data.filename().string(), scene.NumImages(), scene.NumPoints(),
+                           scene.NumObservations(), trained.iterations, trained.train_seconds);
   std::map<Matcher, RealSetCounts> counts;
+  if (set.queries.size() != colmap_position_errors.size()) {
+    ADD_FAILURE() << set.queries.size() << " queries, " << colmap_position_errors.size()
+                  << " COLMAP errors";
+    return counts;
+  }
   for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
-    LocalizerOptions options;
-    options.matcher = matcher;
-    const RunSummary run = LocalizeAll(localizer, options, set, MatcherName(matcher));
-    if (set.queries.size() != colmap_position_errors.size()) {
-      ADD_FAILURE() << set.queries.size() << " queries, " << colmap_position_errors.size()
-                    << " COLMAP errors";
-      return counts;
-    }
+    const RunSummary run = LocalizeAndPrint(localizer, matcher, set, [&](size_t i) {
+      return fmt::format("(COLMAP image_registrator: {:.4f})", colmap_position_errors[i].second);
+    });
     for (size_t i = 0; i < set.queries.size(); ++i) {
       const QueryPoseError& error = run.accuracy.errors[i];
-      std::cout << fmt::format(
-          "  {:<4} {:<9} position error {:8.4f}  rotation error {:7.3f} deg  inliers {:4}  "
-          "(COLMAP image_registrator: {:.4f})\n",
-          MatcherName(matcher), set.queries[i].name, error.position, error.rotation_deg,
-          run.results[i].num_inliers, colmap_position_errors[i].second);
       EXPECT_EQ(set.queries[i].name, colmap_position_errors[i].first);
       counts[matcher].within_fine += error.position <= 0.25 && error.rotation_deg <= 2.0;
       counts[matcher].near_colmap +=

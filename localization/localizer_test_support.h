@@ -1,20 +1,26 @@
-// What the Localizer's tests share: query sets with their ground truth, a run over a set, and the
-// fixture of the trained `small` synthetic city (built by ctest's fixture.trained_small_city).
+// What the Localizer's tests share: query sets with their ground truth, a run over a set, a real
+// set's map built and trained, and the fixture of the trained `small` synthetic city (built by
+// ctest's fixture.trained_small_city).
 #pragma once
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <functional>
+#include <iostream>
 #include <map>
+#include <memory>
 #include <string>
 #include <unordered_map>
 #include <vector>
 
 #include "localization/ablation.h"
 #include "localization/localizer.h"
+#include "localization/map_builder.h"
 #include "localization/pose_evaluation.h"
 #include "localization/query_runner.h"
+#include "model/trainer.h"
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
 #include "util/testing.h"
@@ -64,6 +70,51 @@ inline RunSummary LocalizeAll(const Localizer& localizer, const LocalizerOptions
   summary.accuracy = SummarizeAccuracy(condition, ComputePoseErrors(set.ground_truth, estimates),
                                        AachenThresholds());
   return summary;
+}
+
+// A real set's map: built from a COLMAP model and its features, and trained with the widths
+// `hscloc train` chooses for it; `training` gives the budget and the held-out fraction.
+struct TrainedRealMap {
+  std::shared_ptr<const LocalizationMap> map;
+  std::shared_ptr<const Network> network;
+  int64_t iterations = 0;
+  double train_seconds = 0;
+};
+
+inline TrainedRealMap BuildAndTrainRealMap(const std::filesystem::path& model,
+                                           const std::filesystem::path& features,
+                                           const std::filesystem::path& bundle,
+                                           TrainerOptions training) {
+  MapBuildOptions build_options;
+  build_options.show_progress = false;
+  build_options.label_tree.show_progress = false;
+  BuildMap({model, features, std::nullopt}, build_options, bundle);
+  TrainedRealMap trained;
+  trained.map = LocalizationMap::Load(bundle, {.load_observations = true});
+  training.network = DefaultNetworkOptions(trained.map->scene().NumPoints());
+  training.show_progress = false;
+  TrainingResult result = TrainNetwork(trained.map->scene(), trained.map->label_tree(), training);
+  trained.network = std::make_shared<const Network>(std::move(result.network));
+  trained.iterations = result.iterations;
+  trained.train_seconds = result.seconds;
+  return trained;
+}
+
+// LocalizeAll with `matcher`, printing each query's errors and inliers, and `note(i)` after
+// query i's when given.
+inline RunSummary LocalizeAndPrint(const Localizer& localizer, Matcher matcher, const QuerySet& set,
+                                   const std::function<std::string(size_t)>& note = {}) {
+  LocalizerOptions options;
+  options.matcher = matcher;
+  RunSummary run = LocalizeAll(localizer, options, set, MatcherName(matcher));
+  for (size_t i = 0; i < set.queries.size(); ++i) {
+    const QueryPoseError& error = run.accuracy.errors[i];
+    std::cout << fmt::format(
+        "  {:<4} {:<9} position error {:8.4f}  rotation error {:7.3f} deg  inliers {:4}{}\n",
+        MatcherName(matcher), set.queries[i].name, error.position, error.rotation_deg,
+        run.results[i].num_inliers, note ? "  " + note(i) : "");
+  }
+  return run;
 }
 
 // The trained `small` synthetic city of the test fixture.

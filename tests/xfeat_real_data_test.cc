@@ -7,16 +7,11 @@
 
 #include <iostream>
 #include <map>
-#include <unordered_map>
 
 #include "features/image_extraction.h"
 #include "localization/localizer.h"
-#include "localization/map_builder.h"
-#include "localization/query_runner.h"
-#include "model/trainer.h"
-#include "scene/colmap_io.h"
+#include "localization/localizer_test_support.h"
 #include "scene/feature_io.h"
-#include "scene/query_io.h"
 #include "triangulation/map_triangulation.h"
 #include "util/testing.h"
 #include "util/timer.h"
@@ -48,20 +43,10 @@ FineCounts LocalizeWithXFeat(const fs::path& data, const fs::path& weights) {
       TriangulateMap({data / "map", features, data / "images"}, triangulation, temp / "model");
   const double triangulate_s = step.ElapsedSeconds();
 
-  MapBuildOptions build_options;
-  build_options.show_progress = false;
-  build_options.label_tree.show_progress = false;
-  BuildMap({temp / "model", features, std::nullopt}, build_options, temp / "map");
-  auto map = LocalizationMap::Load(temp / "map", {.load_observations = true});
-  step.Restart();
-  // As `hscloc train` trains without options: the widths and the budget it chooses for this map,
-  // 5 % of the observations held out to keep the best network.
-  TrainerOptions train_options;
-  train_options.network = DefaultNetworkOptions(map->scene().NumPoints());
-  train_options.show_progress = false;
-  TrainingResult training = TrainNetwork(map->scene(), map->label_tree(), train_options);
-  const double train_s = step.ElapsedSeconds();
-  const Localizer localizer(map, std::make_shared<const Network>(std::move(training.network)));
+  // Trained as `hscloc train` trains without options: its budget for the map, 5 % held out.
+  const TrainedRealMap trained =
+      BuildAndTrainRealMap(temp / "model", features, temp / "map", TrainerOptions());
+  const Localizer localizer(trained.map, trained.network);
 
   std::cout << fmt::format(
       "{}: XFeat extracted in {:.1f} s; {} pairs ({} verified), {} verified matches; {} points, "
@@ -69,31 +54,16 @@ FineCounts LocalizeWithXFeat(const fs::path& data, const fs::path& weights) {
       "{} iterations in {:.1f} s\n",
       data.filename().string(), extract_s, triangulated.num_pairs, triangulated.num_verified_pairs,
       triangulated.num_verified_matches, triangulated.num_points3D, triangulated.mean_track_length,
-      triangulated.mean_reprojection_error_px, triangulate_s, training.iterations, train_s);
+      triangulated.mean_reprojection_error_px, triangulate_s, trained.iterations,
+      trained.train_seconds);
 
   const auto reader = OpenH5Features(features);
-  const std::vector<LocalizationQuery> queries =
-      LoadQueries(data / "queries_with_intrinsics.txt", *reader);
-  std::unordered_map<std::string, Rigid3d> truth;
-  for (const NamedPose& pose : ReadPoses(data / "queries_gt.txt")) {
-    truth[pose.name] = pose.cam_from_world;
-  }
+  const QuerySet set =
+      ReadQuerySet(data / "queries_with_intrinsics.txt", *reader, data / "queries_gt.txt");
   FineCounts counts;
   for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
-    LocalizerOptions options;
-    options.matcher = matcher;
-    for (const LocalizationQuery& query : queries) {
-      const PoseResult result = localizer.Localize(query, options);
-      const Rigid3d& expected = truth.at(query.name);
-      const double position_m =
-          result.success ? PositionError(result.cam_from_world, expected) : INFINITY;
-      const double rotation_deg =
-          result.success ? RotationErrorDeg(result.cam_from_world, expected) : INFINITY;
-      std::cout << fmt::format(
-          "  {:<4} {:<9} position error {:8.4f}  rotation error {:7.3f} deg  "
-          "inliers {:4}\n",
-          MatcherName(matcher), query.name, position_m, rotation_deg, result.num_inliers);
-      counts[matcher] += position_m <= 0.25 && rotation_deg <= 2.0;
+    for (const QueryPoseError& error : LocalizeAndPrint(localizer, matcher, set).accuracy.errors) {
+      counts[matcher] += error.position <= 0.25 && error.rotation_deg <= 2.0;
     }
   }
   return counts;
