@@ -21,7 +21,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// What matching keeps of every image; descriptors are read again, a chunk of pairs at a time.
+// What matching keeps of every image; descriptors are kept from the first read when every image's
+// fit in memory at once, and read again a chunk of pairs at a time otherwise.
 struct ImageData {
   KeypointMatrix keypoints;
   PosedKeypoints posed;
@@ -31,9 +32,11 @@ ProgressBar::Display Display(bool show) {
   return show ? ProgressBar::Display::kAuto : ProgressBar::Display::kNever;
 }
 
-// Every model image's features, checked against its camera, and its undistorted keypoints.
+// Every model image's features, checked against its camera, and its undistorted keypoints; their
+// descriptors go into `descriptors` unless it is null.
 std::map<image_t, ImageData> ReadImageFeatures(const Reconstruction& model,
-                                               const FeatureReader& reader, bool show_progress) {
+                                               const FeatureReader& reader, bool show_progress,
+                                               std::map<image_t, DescriptorMatrix>* descriptors) {
   std::vector<std::string> missing;
   for (const auto& [image_id, image] : model.images) {
     if (!reader.HasImage(image.name)) missing.push_back(image.name);
@@ -77,6 +80,7 @@ std::map<image_t, ImageData> ReadImageFeatures(const Reconstruction& model,
     dimension = features.Dimension();
     ImageData data;
     data.keypoints = features.keypoints;
+    if (descriptors != nullptr) descriptors->emplace(image_id, features.descriptors);
     data.posed = UndistortKeypoints(camera, image.cam_from_world, features.keypoints);
     images.emplace(image_id, std::move(data));
     progress.Advance();
@@ -105,18 +109,18 @@ size_t ChunkEnd(const std::vector<ImagePair>& pairs, size_t begin, int max_image
 }
 
 // Pairs are matched in chunks whose images' descriptors fit in options.max_images_in_memory: a
-// chunk's are read (those the previous chunk held are kept), then its pairs matched on all cores.
-// Pairs come sorted by their first image, and co-visible images are near each other, so most
-// images are read once or twice.
+// chunk's are read (those the previous chunk held, or `descriptors` brings, are kept), then its
+// pairs matched on all cores. Pairs come sorted by their first image, and co-visible images are
+// near each other, so most images are read once or twice.
 std::vector<PairMatches> MatchPairs(const std::vector<ImagePair>& pairs,
                                     const Reconstruction& model,
                                     const std::map<image_t, ImageData>& images,
+                                    std::map<image_t, DescriptorMatrix> descriptors,
                                     const FeatureReader& reader,
                                     const MapTriangulationOptions& options,
                                     MapTriangulationSummary* summary) {
   std::vector<PairMatches> results(pairs.size());
   ProgressBar progress("matching pairs", pairs.size(), Display(options.show_progress));
-  std::map<image_t, DescriptorMatrix> descriptors;
   std::set<image_t> chunk_images;
   for (size_t begin = 0; begin < pairs.size();) {
     const size_t end = ChunkEnd(pairs, begin, options.max_images_in_memory, &chunk_images);
@@ -222,10 +226,14 @@ MapTriangulationSummary TriangulateMap(const MapTriangulationInputs& inputs,
         "match",
         inputs.model_dir.string());
   }
-  const std::map<image_t, ImageData> images =
-      ReadImageFeatures(model, *reader, options.show_progress);
+  // A model whose descriptors fit in memory at once keeps them from the first read.
+  const bool all_in_memory =
+      model.images.size() <= static_cast<size_t>(options.max_images_in_memory);
+  std::map<image_t, DescriptorMatrix> descriptors;
+  const std::map<image_t, ImageData> images = ReadImageFeatures(
+      model, *reader, options.show_progress, all_in_memory ? &descriptors : nullptr);
   const std::vector<PairMatches> matches =
-      MatchPairs(pairs, model, images, *reader, options, &summary);
+      MatchPairs(pairs, model, images, std::move(descriptors), *reader, options, &summary);
   summary.num_pairs = static_cast<int64_t>(pairs.size());
   for (const PairMatches& pair : matches) {
     summary.num_matches += static_cast<int64_t>(pair.matches.size());
@@ -235,8 +243,8 @@ MapTriangulationSummary TriangulateMap(const MapTriangulationInputs& inputs,
   }
   summary.seconds_matching = total.ElapsedSeconds();
   spdlog::info(
-      "{} pairs: {} matches, {} pairs verified with {} inlier matches; descriptors of {} images "
-      "read {} times in {} chunks of at most {} images",
+      "{} pairs: {} matches, {} pairs verified with {} inlier matches; {} images' descriptors "
+      "read again {} times, in {} chunks of at most {} images",
       summary.num_pairs, summary.num_matches, summary.num_verified_pairs,
       summary.num_verified_matches, images.size(), summary.num_descriptor_reads,
       summary.num_matching_chunks, options.max_images_in_memory);

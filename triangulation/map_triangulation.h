@@ -45,7 +45,9 @@ struct MapTriangulationSummary {
   int64_t num_matches = 0;           // mutual nearest neighbours passing the ratio test, all pairs
   int64_t num_verified_matches = 0;  // inliers of the verified pairs
   int64_t num_matching_chunks = 0;   // rounds of matching, each within max_images_in_memory
-  int64_t num_descriptor_reads = 0;  // images whose descriptors were read for matching
+  // Images whose descriptors were read again for matching (none when every image's fit in
+  // max_images_in_memory: they are kept from the first read).
+  int64_t num_descriptor_reads = 0;
   // Read back from the triangulated model.
   int64_t num_registered_images = 0;
   int64_t num_points3D = 0;

@@ -68,7 +68,7 @@ TEST(MapTriangulation, MatchesDoNotDependOnHowManyImagesAreHeld) {
   chunked_options.max_images_in_memory = 3;
   const MapTriangulationSummary chunked = TriangulateMap(inputs, chunked_options, temp / "chunked");
   EXPECT_EQ(all_at_once.num_matching_chunks, 1);
-  EXPECT_EQ(all_at_once.num_descriptor_reads, 9);
+  EXPECT_EQ(all_at_once.num_descriptor_reads, 0) << "kept from the first read";
   // 36 pairs of 9 images, at most 3 images and so at most 3 pairs per chunk.
   EXPECT_GE(chunked.num_matching_chunks, 12);
   EXPECT_GT(chunked.num_descriptor_reads, 9);
