@@ -86,7 +86,8 @@ struct LocalizerOptions {
   bool visibility_masked_decoding = false;
   // Of the keypoints the network sends to one point, keep one, since a point is seen once in an
   // image: the most confident (the product of the chosen labels' probabilities) for RANSAC, then
-  // the one the winning pose reprojects nearest. Off, every prediction is a match (the paper).
+  // the one the round's best pose reprojects nearest. Off, every prediction is a match (the
+  // paper).
   bool one_keypoint_per_point = true;
   CandidateSearch candidate_search = CandidateSearch::kAll;
   // Inliers with which kUntilAccepted accepts a candidate and stops.
@@ -191,9 +192,9 @@ class Localizer {
   CandidateMatches FilterVisible(uint32_t image_index, CandidateMatches matches) const;
   AbsolutePoseResult Pose(const LocalizationQuery& query, const CandidateMatches& matches,
                           const LocalizerOptions& options) const;
-  // The pose of the round's best candidate (of [begin, end)) refined once more, each point now
-  // taking the rival keypoint the pose reprojects nearest (rival_matches.h); kept when it has at
-  // least as many inliers.
+  // The pose of the round's best candidate (the round's candidates start at `begin`) refined once
+  // more, each point now taking the rival keypoint the pose reprojects nearest (rival_matches.h);
+  // kept when it has at least as many inliers.
   void RefineRoundWinner(const LocalizationQuery& query, const LocalizerOptions& options,
                          size_t begin, Evaluation& evaluation) const;
   static std::vector<Eigen::Vector2d> KeypointPixels(const LocalizationQuery& query,
