@@ -96,6 +96,20 @@ void NodeLogits(const float* projected, int64_t num_inputs, int64_t dim, const f
   }
 }
 
+float MaxOf(const float* values, int64_t count) {
+  float best = values[0];
+  int64_t i = 0;
+  if (count >= kLanes) {
+    Packet packet_best = ei::ploadu<Packet>(values);
+    for (i = kLanes; i + kLanes <= count; i += kLanes) {
+      packet_best = ei::pmax(packet_best, ei::ploadu<Packet>(values + i));
+    }
+    best = ei::predux_max(packet_best);
+  }
+  for (; i < count; ++i) best = std::max(best, values[i]);
+  return best;
+}
+
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns) {
   for (int64_t row_index = 0; row_index < rows; ++row_index) {
     float* row = values + row_index * columns;

@@ -35,6 +35,9 @@ void EluInPlace(float* values, int64_t count);
 void NodeLogits(const float* projected, int64_t num_inputs, int64_t dim, const float* node_rows,
                 int64_t num_children, int64_t out_columns, float* out);
 
+// The largest of count >= 1 values (no NaNs).
+float MaxOf(const float* values, int64_t count);
+
 // Each of `rows` rows of `columns` values replaced by its softmax.
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns);
 

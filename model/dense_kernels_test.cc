@@ -92,6 +92,23 @@ TEST(DenseKernelsTest, SoftmaxRowsArePositiveAndSumToOne) {
 
 // A row's result must not depend on its address: the same values at every offset within a
 // cache line give bit-identical outputs.
+// Every length (packet multiples, tails, shorter than a packet) and every position of the maximum,
+// at any offset into the buffer.
+TEST(DenseKernelsTest, MaxOfFindsTheLargestValue) {
+  Random random(5);
+  for (int64_t count = 1; count <= 70; ++count) {
+    for (int64_t offset = 0; offset < 3; ++offset) {
+      std::vector<float> values = Normal(count + offset, random);
+      const float* begin = values.data() + offset;
+      EXPECT_EQ(dense_kernels::MaxOf(begin, count), *std::max_element(begin, begin + count))
+          << count << " values at offset " << offset;
+      const int64_t where = random.UniformInt(count);
+      values[offset + where] = 100.0f;
+      EXPECT_EQ(dense_kernels::MaxOf(begin, count), 100.0f) << "maximum at " << where;
+    }
+  }
+}
+
 TEST(DenseKernelsTest, ResultsDoNotDependOnAlignment) {
   Random random(4);
   const int64_t columns = 100;
