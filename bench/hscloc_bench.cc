@@ -222,6 +222,14 @@ std::string Today() {
   return text;
 }
 
+// What the full run gives each preset: training minutes, and queries measured per condition.
+double FullRunTrainMinutes(const std::string& preset) {
+  return preset == "small" ? 3 : preset == "city" ? 8 : 30;
+}
+size_t FullRunQueriesPerCondition(const std::string& preset) {
+  return preset == "aachen" ? 20 : 50;
+}
+
 // The peers rows of the real sets, SIFT then XFeat. The full run trains as `hscloc train` does by
 // default, the map's own budget (Lund: 844 iterations, 2.5 min); --quick cuts it to 20 s.
 json MeasureRealSets(const BenchOptions& options) {
@@ -268,9 +276,20 @@ int Run(const BenchOptions& options) {
     }
     fs::create_directories(options.work);
     SetupLogging("warn");
-    const SyntheticMap map = MakeSyntheticMap(
-        options, options.scale_only, options.train_minutes > 0 ? options.train_minutes : 30);
-    json row = MeasureMap(map, 20, nullptr, previous["machine"], false);
+    const SyntheticMap map =
+        MakeSyntheticMap(options, options.scale_only,
+                         options.train_minutes > 0 ? options.train_minutes
+                                                   : FullRunTrainMinutes(options.scale_only));
+    // The city's row comes with what the full run measures on it: the network against the
+    // machine's floor, the latency grid and the server's throughput.
+    const bool city = options.scale_only == "city";
+    json city_extras;
+    json row = MeasureMap(map, FullRunQueriesPerCondition(options.scale_only),
+                          city ? &city_extras : nullptr, previous["machine"], city);
+    if (city) {
+      city_extras["measured"] = Today();
+      previous["city"] = city_extras;
+    }
     row["measured"] = Today();
     json scale = json::array();
     for (const json& existing : previous["scale"]) {
@@ -307,14 +326,15 @@ int Run(const BenchOptions& options) {
   machine["cpu"] = CpuModel();
   results["machine"] = machine;
 
-  const double minutes = options.quick ? 1 : 8;
+  const double minutes = options.quick ? 1 : FullRunTrainMinutes("city");
   results["real_sets"] = MeasureRealSets(options);
 
   results["scale"] = json::array();
   json city_extras;
-  const size_t queries = options.quick ? 16 : 50;
+  const size_t queries = options.quick ? 16 : FullRunQueriesPerCondition("city");
   {
-    const SyntheticMap small = MakeSyntheticMap(options, "small", options.quick ? 0.5 : 3);
+    const SyntheticMap small =
+        MakeSyntheticMap(options, "small", options.quick ? 0.5 : FullRunTrainMinutes("small"));
     results["scale"].push_back(MeasureMap(small, queries, nullptr, machine, false));
   }
   {
@@ -322,8 +342,9 @@ int Run(const BenchOptions& options) {
     results["scale"].push_back(MeasureMap(city, queries, &city_extras, machine, true));
   }
   if (!options.quick) {
-    const SyntheticMap aachen = MakeSyntheticMap(options, "aachen", 30);
-    results["scale"].push_back(MeasureMap(aachen, 20, nullptr, machine, false));
+    const SyntheticMap aachen = MakeSyntheticMap(options, "aachen", FullRunTrainMinutes("aachen"));
+    results["scale"].push_back(
+        MeasureMap(aachen, FullRunQueriesPerCondition("aachen"), nullptr, machine, false));
   } else if (previous.is_object() && previous.contains("scale")) {
     for (json row : previous["scale"]) {
       if (row["preset"] == "aachen") {
@@ -358,7 +379,8 @@ int main(int argc, char** argv) {
                "Measure the real sets' peers rows (SIFT and XFeat) into the existing JSON, then "
                "rewrite the report");
   app.add_option("--train-minutes", options.train_minutes,
-                 "Training budget for --scale-only (default: the full run's, 30 for aachen)");
+                 "Training budget for --scale-only (default: the full run's: small 3, city 8, "
+                 "aachen 30)");
   app.add_option("--work", work, "Scratch directory for maps and logs")
       ->default_str(options.work.string());
   app.add_option("--data", data, "Real test data (fountain-P11, lund)")

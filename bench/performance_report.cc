@@ -251,8 +251,12 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
             network["predict_ms"].get<double>(),
         fmt::join(network.value("level_ms", std::vector<double>{}), " / "));
 
-    md << "## End-to-end latency per stage (city, all cores for one query, ms, p50 / p95)\n\n"
-          "| keypoints | K | mode | retrieval | network | visibility | pose | total | localized "
+    md << "## End-to-end latency per stage (city, all cores for one query, ms, p50 / p95)\n\n";
+    if (city.contains("measured")) {
+      md << fmt::format("Measured on {} with the city's row (`--scale-only city`).\n\n",
+                        city["measured"].get<std::string>());
+    }
+    md << "| keypoints | K | mode | retrieval | network | visibility | pose | total | localized "
           "|\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
     for (const json& row : city["latency"]) {
       const auto stage = [&](const char* key) {
