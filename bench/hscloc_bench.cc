@@ -291,11 +291,15 @@ int Run(const BenchOptions& options) {
       previous["city"] = city_extras;
     }
     row["measured"] = Today();
+    // In its place among the presets (small, city, aachen), or last when it had none.
     json scale = json::array();
+    bool replaced = false;
     for (const json& existing : previous["scale"]) {
-      if (existing["preset"] != options.scale_only) scale.push_back(existing);
+      const bool same = existing["preset"] == options.scale_only;
+      scale.push_back(same ? row : existing);
+      replaced = replaced || same;
     }
-    scale.push_back(row);
+    if (!replaced) scale.push_back(row);
     previous["scale"] = scale;
     WriteResults(previous, json_path, options);
     Step(fmt::format("added {} to {} and {}", options.scale_only, json_path.string(),
