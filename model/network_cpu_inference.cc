@@ -319,10 +319,17 @@ class CpuForwardPass {
         const size_t count = std::min(kChunk, span.size - first);
         scratch.segment_starts.clear();
         scratch.segment_groups.clear();
+        // A whole range of ranks (every point under the parent) is already contiguous in the
+        // table; only an image's list of ranks needs gathering.
+        const bool contiguous = span.ranks == nullptr;
+        const float* rows =
+            contiguous ? point_rows + (span.first + first) * row_width : scratch.gathered.data();
         for (size_t m = 0; m < count; ++m) {
           const uint32_t rank = span[first + m];
-          std::copy_n(point_rows + rank * row_width, row_width,
-                      scratch.gathered.data() + m * row_width);
+          if (!contiguous) {
+            std::copy_n(point_rows + rank * row_width, row_width,
+                        scratch.gathered.data() + m * row_width);
+          }
           const uint8_t group = candidates_->LabelOfRank(rank, depth);
           if (m == 0 || group != scratch.segment_groups.back()) {
             scratch.segment_starts.push_back(static_cast<uint32_t>(m));
@@ -331,9 +338,8 @@ class CpuForwardPass {
         }
         scratch.segment_starts.push_back(static_cast<uint32_t>(count));
         dense_kernels::NodeLogits(scratch.projected.data() + (i - begin) * node_output_dim_,
-                                  run_rows, node_output_dim_, scratch.gathered.data(),
-                                  static_cast<int64_t>(count), static_cast<int64_t>(count),
-                                  scratch.scores.data());
+                                  run_rows, node_output_dim_, rows, static_cast<int64_t>(count),
+                                  static_cast<int64_t>(count), scratch.scores.data());
         // Each child's best score over its run of the chunk, a contiguous (vectorized) maximum:
         // scattering score by score into the child's logit took half of an id-free pass at
         // aachen scale.
