@@ -78,7 +78,8 @@ json RunColmapRegistration(const BenchOptions& options, const fs::path& set_dir,
           {"median_position", accuracy.median_position},
           {"median_rotation_deg", accuracy.median_rotation_deg},
           {"ms_per_query", 1000 * (matching.seconds + registration.seconds) / queries.size()},
-          {"map_bytes", fs::file_size(set_dir / "database.db") + DirectoryBytes(set_dir / "map")}};
+          {"map_bytes", fs::file_size(set_dir / "database.db") + DirectoryBytes(set_dir / "map")},
+          {"per_query", PerQueryErrorsJson(accuracy)}};
 }
 
 // HSC needs the bundle without the observations' descriptors; the nearest-neighbour matcher needs

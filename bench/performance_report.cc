@@ -165,6 +165,32 @@ std::string PeerRow(const std::string& name, const json& result, double map_byte
                      result["median_position"].get<double>(), ms, Megabytes(map_bytes));
 }
 
+// One query's errors by one method, "0.012 m, 0.05°", or why there are none.
+std::string QueryErrorCell(const json& method, const std::string& query) {
+  if (!method.contains("per_query")) return "-";
+  for (const json& entry : method["per_query"]) {
+    if (entry["name"] != query) continue;
+    if (entry["position"].is_null()) return "no pose";
+    return fmt::format("{:.3f} m, {:.2f}°", entry["position"].get<double>(),
+                       entry["rotation_deg"].get<double>());
+  }
+  return "-";
+}
+
+// Each query's errors side by side, so that a query that slides does not hide behind a median.
+std::string PerQueryTable(const json& peers) {
+  if (!peers["hsc"].contains("per_query")) return "";
+  std::string table =
+      "| query | HSC | NN baseline | COLMAP image_registrator |\n| --- | --- | --- | --- |\n";
+  for (const json& entry : peers["hsc"]["per_query"]) {
+    const std::string query = entry["name"].get<std::string>();
+    table +=
+        fmt::format("| {} | {} | {} | {} |\n", query, QueryErrorCell(peers["hsc"], query),
+                    QueryErrorCell(peers["nn"], query), QueryErrorCell(peers["colmap"], query));
+  }
+  return table + "\n";
+}
+
 std::string PeersTable(const json& peers) {
   std::string table = fmt::format(
       "**{}** ({} queries; network trained {:.0f} s)\n\n| method | (0.25 m, 2°) | (0.5 m, 5°) | (5 "
@@ -177,7 +203,7 @@ std::string PeersTable(const json& peers) {
   table += PeerRow("NN baseline (descriptors + points + index)", peers["nn"], sizes["nn_bytes"]);
   table += PeerRow("COLMAP image_registrator (database.db + model)", peers["colmap"],
                    peers["colmap"].value("map_bytes", 0.0));
-  return table + "\n";
+  return table + "\n" + PerQueryTable(peers);
 }
 
 }  // namespace

@@ -59,7 +59,21 @@ json AccuracyJson(const Evaluation& evaluation) {
           {"localized_fraction", evaluation.accuracy.localized_fraction},
           {"median_position", evaluation.accuracy.median_position},
           {"median_rotation_deg", evaluation.accuracy.median_rotation_deg},
-          {"ms_per_query_one_thread", Mean(total_ms)}};
+          {"ms_per_query_one_thread", Mean(total_ms)},
+          {"per_query", PerQueryErrorsJson(evaluation.accuracy)}};
+}
+
+json PerQueryErrorsJson(const ConditionAccuracy& accuracy) {
+  json queries = json::array();
+  for (const QueryPoseError& error : accuracy.errors) {
+    json entry = {{"name", error.name}, {"position", nullptr}, {"rotation_deg", nullptr}};
+    if (error.estimated) {
+      entry["position"] = error.position;
+      entry["rotation_deg"] = error.rotation_deg;
+    }
+    queries.push_back(entry);
+  }
+  return queries;
 }
 
 }  // namespace hscloc::bench

@@ -28,7 +28,10 @@ Evaluation Evaluate(const Localizer& localizer, const LocalizerOptions& options,
                     const std::vector<LocalizationQuery>& queries,
                     const std::vector<NamedPose>& ground_truth, const std::string& condition);
 
-// Accuracy per threshold, medians and the mean time per query.
+// Accuracy per threshold, medians, the mean time per query, and each query's errors.
 nlohmann::json AccuracyJson(const Evaluation& evaluation);
+
+// Each query's name and errors (position, rotation_deg; null where it has no pose), in order.
+nlohmann::json PerQueryErrorsJson(const ConditionAccuracy& accuracy);
 
 }  // namespace hscloc::bench

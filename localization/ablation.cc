@@ -53,9 +53,11 @@ AblationCell RunCell(const Localizer& localizer, const AblationVariant& variant,
 }  // namespace
 
 std::vector<AblationVariant> StandardAblationVariants() {
-  std::vector<AblationVariant> variants(6);
-  // The paper's pipeline retrieves with the global descriptor alone; each of the first five
-  // variants switches one thing of it, the last is hscloc's default.
+  std::vector<AblationVariant> variants(7);
+  // The paper's pipeline retrieves with the global descriptor alone and keeps the winning image's
+  // pose; each of the first five variants switches one thing of it, the sixth adds the votes'
+  // round, the last is hscloc's default.
+  for (size_t i = 0; i < 6; ++i) variants[i].options.final_pose = FinalPose::kWinner;
   for (size_t i = 0; i < 5; ++i) variants[i].options.retrieval = RetrievalMode::kGlobal;
   variants[0].name = "top-10, visibility filter (paper)";
   variants[1].name = "top-1, visibility filter";
@@ -67,8 +69,11 @@ std::vector<AblationVariant> StandardAblationVariants() {
   variants[3].options.visibility_filter = false;
   variants[4].name = "top-10, visibility-masked decoding";
   variants[4].options.visibility_masked_decoding = true;
-  variants[5].name = "top-10, then point votes (default)";
+  variants[5].name = "top-10, then point votes";
   variants[5].options.retrieval = RetrievalMode::kGlobalThenVotes;
+  variants[6].name = "top-10, then point votes, pooled final pose (default)";
+  variants[6].options.retrieval = RetrievalMode::kGlobalThenVotes;
+  variants[6].options.final_pose = FinalPose::kPooled;
   return variants;
 }
 

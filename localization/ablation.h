@@ -21,10 +21,10 @@ struct AblationVariant {
   LocalizerOptions options;
 };
 
-// The paper's configuration (top-10 images retrieved by the global descriptor, visibility filter)
-// first, then one switch changed at a time: top-1, no visibility filter, top-1 without the
-// filter, visibility-masked decoding, and a round of point votes after a weak retrieval (the
-// default).
+// The paper's configuration (top-10 images retrieved by the global descriptor, visibility filter,
+// the winning image's pose) first, then one switch changed at a time: top-1, no visibility filter,
+// top-1 without the filter, visibility-masked decoding, a round of point votes after a weak
+// retrieval, and with it the final pose pooled over the candidates that agree (the default).
 std::vector<AblationVariant> StandardAblationVariants();
 
 // The queries of one condition (day, night), with their features (LoadQueries).

@@ -150,15 +150,20 @@ TEST_F(AblationTest, BadInputsAreRejectedByName) {
 
 TEST(AblationVariantsTest, ThePaperFirstThenOneSwitchEach) {
   const std::vector<AblationVariant> variants = StandardAblationVariants();
-  ASSERT_EQ(variants.size(), 6u);
+  ASSERT_EQ(variants.size(), 7u);
   const LocalizerOptions defaults;
   EXPECT_EQ(variants[0].options.top_k, defaults.top_k);
   EXPECT_EQ(variants[0].options.top_k, 10);
   for (size_t i = 0; i < 5; ++i) {
     EXPECT_EQ(variants[i].options.retrieval, RetrievalMode::kGlobal) << variants[i].name;
   }
+  for (size_t i = 0; i < 6; ++i) {
+    EXPECT_EQ(variants[i].options.final_pose, FinalPose::kWinner) << variants[i].name;
+  }
   EXPECT_EQ(variants[5].options.retrieval, RetrievalMode::kGlobalThenVotes);
-  EXPECT_EQ(variants[5].options.retrieval, defaults.retrieval);
+  EXPECT_EQ(variants[6].options.retrieval, defaults.retrieval);
+  EXPECT_EQ(variants[6].options.final_pose, defaults.final_pose);
+  EXPECT_EQ(variants[6].options.final_pose, FinalPose::kPooled);
   EXPECT_TRUE(variants[0].options.visibility_filter);
   EXPECT_FALSE(variants[0].options.visibility_masked_decoding);
   EXPECT_EQ(variants[1].options.top_k, 1);

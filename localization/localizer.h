@@ -15,6 +15,9 @@
 //                  those rival keypoints the one its pose reprojects nearest, and the pose
 //                  refined again on them
 //   Choose         the candidate pose with the most inliers wins
+//   Pool           the matches of every candidate that agrees with the winner's pose, pooled,
+//                  and the winner's pose refined over all their inliers (kept when it has at
+//                  least the winner's inliers; FinalPose::kWinner keeps the paper's pose)
 // Thread-safe: any number of threads may call Localize concurrently on one Localizer.
 #pragma once
 
@@ -59,6 +62,20 @@ enum class RetrievalMode {
 RetrievalMode ParseRetrievalMode(const std::string& name);
 std::string RetrievalModeName(RetrievalMode mode);
 
+// Which matches the final pose comes from (docs/decisions.md: "The final pose pools the candidates
+// that agree").
+enum class FinalPose {
+  kWinner,  // the winning candidate's own pose, from the points its image sees (the paper)
+  // The matches of the winner and of every candidate with at least AbsolutePoseOptions::
+  // min_inliers inliers under the winner's pose, pooled (the network's rival keypoints of a point
+  // settled by the winner's reprojection), and the winner's LO-RANSAC pose refined over all of
+  // their inliers (RefineAbsolutePoseFrom); kept when it has at least the winner's inliers.
+  kPooled,
+};
+// "winner" or "pooled"; throws std::invalid_argument otherwise.
+FinalPose ParseFinalPose(const std::string& name);
+std::string FinalPoseName(FinalPose final_pose);
+
 enum class Matcher {
   kNetwork,          // the hierarchical scene coordinate classification network ("hsc")
   kNearestNeighbor,  // mutual nearest neighbours + ratio test against the image's observations
@@ -90,6 +107,7 @@ struct LocalizerOptions {
   // paper).
   bool one_keypoint_per_point = true;
   CandidateSearch candidate_search = CandidateSearch::kAll;
+  FinalPose final_pose = FinalPose::kPooled;
   // Inliers with which kUntilAccepted accepts a candidate and stops.
   int accept_candidate_inliers = 100;
   // The explicit-matching baseline's ratio test and mutuality.
@@ -134,9 +152,11 @@ struct PoseResult {
   Rigid3d cam_from_world;
   int num_inliers = 0;
   int best_candidate = -1;  // index into candidates, -1 on failure
+  // Candidates whose matches the final pose comes from: 1 for the winner alone, 0 on failure.
+  int num_pooled_candidates = 0;
   std::vector<LocalizationCandidate> candidates;
-  // The winning candidate's 2D-3D matches: keypoint row, dense point index (into the scene's
-  // points), inlier flag.
+  // The final pose's 2D-3D matches (the winner's, or the pool's): keypoint row, dense point index
+  // (into the scene's points), inlier flag.
   std::vector<int> match_keypoints;
   std::vector<uint32_t> match_points;
   std::vector<char> match_inliers;
@@ -208,6 +228,11 @@ class Localizer {
   void EvaluateCandidates(const LocalizationQuery& query, const LocalizerOptions& options,
                           size_t begin, size_t end, bool stop_when_accepted,
                           Evaluation& evaluation) const;
+  // The final pose and its matches, from the winner alone or pooled as options.final_pose says.
+  struct FinalMatches;
+  FinalMatches PoolAgreeingCandidates(const LocalizationQuery& query,
+                                      const LocalizerOptions& options,
+                                      Evaluation& evaluation) const;
   // The candidate with the most inliers among those from `begin` on posed successfully; -1 when
   // none.
   static int Choose(const std::vector<LocalizationCandidate>& candidates, size_t begin = 0);

@@ -214,8 +214,11 @@ TEST_F(SmallCityLocalizerTest, ConcurrentQueriesGiveTheSequentialResults) {
 }
 
 TEST_F(SmallCityLocalizerTest, ResultDescribesTheWinningCandidate) {
-  const PoseResult result = localizer().Localize(Set("day").queries.front());
+  LocalizerOptions winner_only;
+  winner_only.final_pose = FinalPose::kWinner;
+  const PoseResult result = localizer().Localize(Set("day").queries.front(), winner_only);
   ASSERT_TRUE(result.success) << result.failure_reason;
+  EXPECT_EQ(result.num_pooled_candidates, 1);
   EXPECT_EQ(result.candidates.size(), 10u);
   ASSERT_GE(result.best_candidate, 0);
   const LocalizationCandidate& best = result.candidates[result.best_candidate];
@@ -237,6 +240,58 @@ TEST_F(SmallCityLocalizerTest, ResultDescribesTheWinningCandidate) {
   EXPECT_GT(result.timings.match_ms, 0);
   EXPECT_GE(result.timings.total_ms,
             result.timings.retrieval_ms + result.timings.match_ms + result.timings.pose_ms);
+}
+
+// The pooled final pose: at least the winner's inliers, from the matches of candidates the
+// winner's pose explains, each (keypoint, point) once and each point with one keypoint; no less
+// accurate than the winner's own pose over the day and night queries.
+TEST_F(SmallCityLocalizerTest, PooledPoseUsesTheAgreeingCandidatesMatches) {
+  LocalizerOptions winner_only;
+  winner_only.final_pose = FinalPose::kWinner;
+  int pooled_queries = 0;
+  double winner_error_sum = 0;
+  double pooled_error_sum = 0;
+  for (const std::string condition : {"day", "night"}) {
+    for (size_t q = 0; q < Set(condition).queries.size(); ++q) {
+      const LocalizationQuery& query = Set(condition).queries[q];
+      SCOPED_TRACE(query.name);
+      const PoseResult pooled = localizer().Localize(query);
+      const PoseResult winner = localizer().Localize(query, winner_only);
+      ASSERT_EQ(pooled.success, winner.success);
+      if (!pooled.success) continue;
+      EXPECT_EQ(pooled.best_candidate, winner.best_candidate);
+      EXPECT_GE(pooled.num_inliers, winner.num_inliers);
+      ASSERT_GE(pooled.num_pooled_candidates, 1);
+      ASSERT_EQ(pooled.match_points.size(), pooled.match_keypoints.size());
+      ASSERT_EQ(pooled.match_inliers.size(), pooled.match_points.size());
+      EXPECT_EQ(std::count(pooled.match_inliers.begin(), pooled.match_inliers.end(), 1),
+                pooled.num_inliers);
+      std::set<uint32_t> points(pooled.match_points.begin(), pooled.match_points.end());
+      EXPECT_EQ(points.size(), pooled.match_points.size()) << "a point with two keypoints";
+      // Every match is to a point some evaluated candidate image observes (one the winner
+      // explains may have failed its own RANSAC).
+      for (const uint32_t point : pooled.match_points) {
+        EXPECT_TRUE(std::any_of(pooled.candidates.begin(), pooled.candidates.end(),
+                                [&](const LocalizationCandidate& candidate) {
+                                  return candidate.evaluated &&
+                                         localizer().map().visibility().IsVisible(
+                                             candidate.image_index, point);
+                                }));
+      }
+      if (pooled.num_pooled_candidates > 1) {
+        ++pooled_queries;
+        const auto position_error = [&](const PoseResult& result) {
+          return (result.cam_from_world.Inverse().translation -
+                  Set(condition).ground_truth[q].cam_from_world.Inverse().translation)
+              .norm();
+        };
+        winner_error_sum += position_error(winner);
+        pooled_error_sum += position_error(pooled);
+      }
+    }
+  }
+  EXPECT_GT(pooled_queries, 0);
+  EXPECT_LE(pooled_error_sum, winner_error_sum * 1.05);
 }
 
 TEST_F(SmallCityLocalizerTest, MalformedQueriesAreRejectedWithTheirReason) {
@@ -307,6 +362,8 @@ TEST(LocalizerTest, MatcherNamesRoundTrip) {
 struct RealSetCounts {
   int within_fine = 0;
   int near_colmap = 0;
+  int fine_or_near_colmap = 0;
+  int within_medium = 0;  // (0.5 m, 5 deg)
 };
 
 // Localizes the set's queries with the network and with the nearest-neighbour baseline, prints
@@ -341,9 +398,12 @@ std::map<Matcher, RealSetCounts> LocalizeRealSet(
     for (size_t i = 0; i < set.queries.size(); ++i) {
       const QueryPoseError& error = run.accuracy.errors[i];
       EXPECT_EQ(set.queries[i].name, colmap_position_errors[i].first);
-      counts[matcher].within_fine += error.position <= 0.25 && error.rotation_deg <= 2.0;
-      counts[matcher].near_colmap +=
-          error.position <= colmap_position_errors[i].second + tolerance_m;
+      const bool fine = error.position <= 0.25 && error.rotation_deg <= 2.0;
+      const bool near_colmap = error.position <= colmap_position_errors[i].second + tolerance_m;
+      counts[matcher].within_fine += fine;
+      counts[matcher].near_colmap += near_colmap;
+      counts[matcher].fine_or_near_colmap += fine || near_colmap;
+      counts[matcher].within_medium += error.position <= 0.5 && error.rotation_deg <= 5.0;
     }
   }
   return counts;
@@ -361,9 +421,14 @@ TEST(RealDataLocalizerTest, FountainQueriesWithinQuarterMetreAndTwoDegrees) {
 }
 
 // Lund's map has 3.2 observations per point, and its SfM pseudo ground truth is folded between
-// 15.jpg and 16.jpg (see the set's README). The network localizes 4 or 5 of the 5 queries within
-// (0.25 m, 2 deg) and within 5 cm of COLMAP's own error; 25.jpg is the hard one (COLMAP 0.19 m,
-// nearest neighbour 0.32 m, the network 0.24 m or no pose), and the checks leave it its slack.
+// 15.jpg and 16.jpg (see the set's README). 25.jpg sees the street head-on: the winning image's
+// inliers lie 28 to 68 m deep in the middle of the photo, and its own pose slides along the
+// viewing direction (nearest neighbour 0.32 m, the network 0.26 to 0.33 m over nine seeds). Pooled
+// with the candidates that agree, nearest neighbour comes within 0.22 m whatever the network
+// (COLMAP's registration: 0.19 m) and the network within 0.11 to 0.27 m over nine seeds (8 of 9
+// within 0.25 m). The other queries are within 5 cm with both matchers. So nearest neighbour
+// takes every query within (0.25 m, 2 deg) or within 2 cm of COLMAP's own error, and the network
+// four of them with any seed and all five within (0.5 m, 5 deg).
 TEST(RealDataLocalizerTest, LundQueriesAgainstColmap) {
   HSCLOC_REQUIRE_REAL_DATA(data, "lund");
   std::map<Matcher, RealSetCounts> counts = LocalizeRealSet(data, 400,
@@ -372,10 +437,11 @@ TEST(RealDataLocalizerTest, LundQueriesAgainstColmap) {
                                                              {"15.jpg", 0.0137},
                                                              {"20.jpg", 0.0532},
                                                              {"25.jpg", 0.1947}},
-                                                            0.05);
+                                                            0.02);
+  EXPECT_EQ(counts[Matcher::kNearestNeighbor].fine_or_near_colmap, 5);
+  EXPECT_GE(counts[Matcher::kNetwork].fine_or_near_colmap, 4);
   for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
-    EXPECT_GE(counts[matcher].within_fine, 4) << MatcherName(matcher);
-    EXPECT_GE(counts[matcher].near_colmap, 4) << MatcherName(matcher);
+    EXPECT_EQ(counts[matcher].within_medium, 5) << MatcherName(matcher);
   }
 }
 

@@ -25,6 +25,7 @@ struct LocalizeArguments {
   std::string global_features;
   std::string matcher = "hsc";
   std::string candidate_search = "all";
+  std::string final_pose = FinalPoseName(LocalizerOptions().final_pose);
   std::string retrieval = RetrievalModeName(LocalizerOptions().retrieval);
   std::string device = "cpu";
   bool no_visibility_filter = false;
@@ -38,6 +39,7 @@ int RunLocalize(LocalizeArguments& arguments) {
   LocalizerOptions& options = arguments.options;
   options.matcher = ParseMatcher(arguments.matcher);
   options.candidate_search = ParseCandidateSearch(arguments.candidate_search);
+  options.final_pose = ParseFinalPose(arguments.final_pose);
   options.retrieval = ParseRetrievalMode(arguments.retrieval);
   options.visibility_filter = !arguments.no_visibility_filter;
   options.use_image_id = !arguments.no_image_id;
@@ -142,6 +144,12 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
   command
       ->add_option("--accept-candidate-inliers", options.accept_candidate_inliers,
                    "Inliers that accept a candidate with --candidate-search until-accepted")
+      ->capture_default_str();
+  command
+      ->add_option("--final-pose", arguments->final_pose,
+                   "pooled: the matches of every candidate that agrees with the winner's pose, "
+                   "posed together; winner: the winning candidate's own pose (the paper)")
+      ->check(CLI::IsMember({"winner", "pooled"}))
       ->capture_default_str();
   command
       ->add_option("--threshold", options.pose.max_reprojection_error_px,

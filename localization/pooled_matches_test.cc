@@ -1,0 +1,78 @@
+#include "localization/pooled_matches.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <set>
+#include <stdexcept>
+#include <utility>
+
+#include "util/random.h"
+
+namespace hscloc {
+namespace {
+
+using ::testing::ElementsAre;
+
+TEST(PooledMatches, EachPairOnceInKeypointOrderWithItsHighestConfidence) {
+  // Pair (2, 7) comes from both parts (0.4 and 0.8); keypoint 2 also goes to point 5 in the second
+  // part, and point 7 also has keypoint 1: a keypoint or a point may appear in several pairs.
+  const CandidateMatches first{{2, 0, 1}, {7, 3, 7}, {0.4f, 0.9f, 0.6f}};
+  const CandidateMatches second{{2, 2, 4}, {7, 5, 3}, {0.8f, 0.3f, 0.7f}};
+  const CandidateMatches united = UniteMatches({&first, &second});
+  EXPECT_THAT(united.keypoints, ElementsAre(0, 1, 2, 2, 4));
+  EXPECT_THAT(united.point_indices, ElementsAre(3, 7, 5, 7, 3));
+  EXPECT_THAT(united.confidences, ElementsAre(0.9f, 0.6f, 0.3f, 0.8f, 0.7f));
+}
+
+TEST(PooledMatches, MatchesWithoutConfidencesStayWithout) {
+  const CandidateMatches first{{3, 1}, {4, 4}, {}};
+  const CandidateMatches empty;
+  const CandidateMatches united = UniteMatches({&first, &empty, &first});
+  EXPECT_THAT(united.keypoints, ElementsAre(1, 3));
+  EXPECT_THAT(united.point_indices, ElementsAre(4, 4));
+  EXPECT_TRUE(united.confidences.empty());
+  EXPECT_EQ(UniteMatches({}).size(), 0u);
+}
+
+// Random parts: the union holds exactly the distinct pairs, sorted, whatever the parts' order.
+TEST(PooledMatches, UnionOfRandomPartsIsTheSetOfTheirPairs) {
+  Random random(7);
+  for (int trial = 0; trial < 20; ++trial) {
+    std::vector<CandidateMatches> parts(1 + static_cast<int>(random.UniformInt(5)));
+    std::set<std::pair<int, uint32_t>> expected;
+    for (CandidateMatches& part : parts) {
+      const int size = static_cast<int>(random.UniformInt(30));
+      for (int i = 0; i < size; ++i) {
+        part.keypoints.push_back(static_cast<int>(random.UniformInt(20)));
+        part.point_indices.push_back(static_cast<uint32_t>(random.UniformInt(10)));
+        expected.emplace(part.keypoints.back(), part.point_indices.back());
+      }
+    }
+    std::vector<const CandidateMatches*> forward;
+    for (const CandidateMatches& part : parts) forward.push_back(&part);
+    std::vector<const CandidateMatches*> backward(forward.rbegin(), forward.rend());
+    const CandidateMatches united = UniteMatches(forward);
+    std::vector<std::pair<int, uint32_t>> pairs;
+    for (size_t i = 0; i < united.size(); ++i) {
+      pairs.emplace_back(united.keypoints[i], united.point_indices[i]);
+    }
+    const std::vector<std::pair<int, uint32_t>> distinct(expected.begin(), expected.end());
+    EXPECT_EQ(pairs, distinct);
+    const CandidateMatches reversed = UniteMatches(backward);
+    EXPECT_EQ(reversed.keypoints, united.keypoints);
+    EXPECT_EQ(reversed.point_indices, united.point_indices);
+  }
+}
+
+TEST(PooledMatches, MixedOrMalformedPartsThrow) {
+  const CandidateMatches confident{{0}, {1}, {0.5f}};
+  const CandidateMatches plain{{1}, {2}, {}};
+  EXPECT_THROW(UniteMatches({&confident, &plain}), std::invalid_argument);
+  const CandidateMatches short_points{{0, 1}, {1}, {}};
+  EXPECT_THROW(UniteMatches({&short_points}), std::invalid_argument);
+  EXPECT_THROW(UniteMatches({nullptr}), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace hscloc
