@@ -1,6 +1,7 @@
 // A trained network after training: its accuracy on observations (each conditioned on its own
 // image), and its place in the map bundle (model/trainer.h).
 #include <algorithm>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <vector>
 
@@ -47,6 +48,76 @@ NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, co
   const double count = std::max<double>(1, evaluation.num_observations);
   for (const size_t correct : correct_levels)
     evaluation.level_accuracies.push_back(correct / count);
+  evaluation.leaf_accuracy = correct_points / count;
+  evaluation.seconds = timer.ElapsedSeconds();
+  return evaluation;
+}
+
+namespace {
+
+// Whether `predicted`'s label path equals `truth`'s up to each level, counted into `correct`.
+void CountLabelPrefix(const LabelTree& tree, uint32_t predicted, uint32_t truth,
+                      std::vector<size_t>& correct) {
+  const LabelTree::Label* predicted_labels = tree.LabelsOfPoint(predicted);
+  const LabelTree::Label* true_labels = tree.LabelsOfPoint(truth);
+  for (int level = 0; level < tree.levels() && predicted_labels[level] == true_labels[level];
+       ++level) {
+    ++correct[level];
+  }
+}
+
+}  // namespace
+
+NetworkEvaluation EvaluateNearestClassMean(const Scene& scene, const LabelTree& tree,
+                                           const Visibility& visibility,
+                                           const std::vector<uint32_t>& evaluated) {
+  Timer timer;
+  THROW_CHECK_MSG(visibility.NumImages() == scene.NumImages(),
+                  "EvaluateNearestClassMean: visibility of {} images for a scene of {}",
+                  visibility.NumImages(), scene.NumImages());
+  std::vector<char> is_evaluated(scene.NumObservations(), 0);
+  for (const uint32_t observation : evaluated) {
+    THROW_CHECK_LT(size_t{observation}, scene.NumObservations());
+    is_evaluated[observation] = 1;
+  }
+  Eigen::MatrixXf means = Eigen::MatrixXf::Zero(scene.NumPoints(), scene.Dimension());
+  for (size_t observation = 0; observation < scene.NumObservations(); ++observation) {
+    if (is_evaluated[observation]) continue;
+    const auto descriptor = scene.observation_descriptors.row(observation);
+    const float norm = descriptor.norm();
+    if (norm > 0) means.row(scene.observation_point_indices[observation]) += descriptor / norm;
+  }
+  for (int64_t point = 0; point < means.rows(); ++point) {
+    const float norm = means.row(point).norm();
+    if (norm > 0) means.row(point) /= norm;
+  }
+  NetworkEvaluation evaluation;
+  evaluation.num_observations = evaluated.size();
+  std::vector<size_t> correct_levels(tree.levels(), 0);
+  size_t correct_points = 0;
+  for (const uint32_t observation : evaluated) {
+    const uint32_t image = scene.observation_image_indices[observation];
+    const auto descriptor = scene.observation_descriptors.row(observation);
+    float best_score = -std::numeric_limits<float>::infinity();
+    int64_t best_point = -1;
+    for (const uint32_t* point = visibility.PointsBegin(image);
+         point != visibility.PointsEnd(image); ++point) {
+      if (means.row(*point).squaredNorm() == 0) continue;
+      const float score = means.row(*point).dot(descriptor);
+      if (score > best_score) {
+        best_score = score;
+        best_point = *point;
+      }
+    }
+    if (best_point < 0) continue;
+    const uint32_t truth = scene.observation_point_indices[observation];
+    CountLabelPrefix(tree, static_cast<uint32_t>(best_point), truth, correct_levels);
+    correct_points += best_point == truth;
+  }
+  const double count = std::max<double>(1, evaluation.num_observations);
+  for (const size_t correct : correct_levels) {
+    evaluation.level_accuracies.push_back(correct / count);
+  }
   evaluation.leaf_accuracy = correct_points / count;
   evaluation.seconds = timer.ElapsedSeconds();
   return evaluation;

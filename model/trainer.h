@@ -191,6 +191,15 @@ NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, co
                                   const std::vector<uint32_t>& observation_indices,
                                   const Visibility* visibility_mask = nullptr);
 
+// The nearest-class-mean matcher, the yardstick of a network's held-out accuracy: each point's
+// class mean is the normalized mean of the unit descriptors of its observations outside
+// `evaluated`, and each observation of `evaluated` goes to the point, among those its image
+// observes, whose mean has the largest cosine with it. Levels count the predicted point's label
+// path. A point whose every observation is evaluated has no mean and is never predicted.
+NetworkEvaluation EvaluateNearestClassMean(const Scene& scene, const LabelTree& tree,
+                                           const Visibility& visibility,
+                                           const std::vector<uint32_t>& evaluated);
+
 // Adds the network (map_blobs::kNetwork), the training log (map_blobs::kTrainingLog) and
 // metadata "network" (shape, options, training summary, and the evaluations given) to an existing
 // map bundle, atomically.

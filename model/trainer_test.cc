@@ -10,6 +10,7 @@
 #include <functional>
 #include <iostream>
 #include <memory>
+#include <numeric>
 
 #include "map/map_bundle.h"
 #include "model/network_test_support.h"
@@ -150,6 +151,33 @@ TEST(TrainerTest, HeldOutSplitIsDeterministicAndNearTheFraction) {
   }
   EXPECT_NEAR(held_out / 100000.0, 0.05, 0.005);
   EXPECT_FALSE(IsHeldOutObservation(17, 0, 3));
+}
+
+// The nearest-class-mean yardstick: the tiny city's points are a prototype each plus noise, so the
+// class means of the training observations place most held-out ones; a label path right at a level
+// is right at every coarser one; with a point's own observations all evaluated, nothing is left to
+// place it, and its observations are never right.
+TEST_F(TinyCityTrainerTest, NearestClassMeanPlacesHeldOutObservationsByTheirPointsMeans) {
+  const Scene& scene = Map().scene;
+  const std::vector<uint32_t> held_out = HeldOutObservations(scene, 0.05, 0);
+  const NetworkEvaluation evaluation =
+      EvaluateNearestClassMean(scene, Map().tree, Map().visibility, held_out);
+  EXPECT_EQ(evaluation.num_observations, held_out.size());
+  ASSERT_EQ(evaluation.level_accuracies.size(), static_cast<size_t>(Map().tree.levels()));
+  EXPECT_GE(evaluation.leaf_accuracy, 0.9);
+  for (size_t level = 1; level < evaluation.level_accuracies.size(); ++level) {
+    EXPECT_LE(evaluation.level_accuracies[level], evaluation.level_accuracies[level - 1]);
+  }
+  EXPECT_EQ(evaluation.level_accuracies.back(), evaluation.leaf_accuracy);
+
+  std::vector<uint32_t> every_observation(scene.NumObservations());
+  std::iota(every_observation.begin(), every_observation.end(), 0u);
+  const NetworkEvaluation without_means =
+      EvaluateNearestClassMean(scene, Map().tree, Map().visibility, every_observation);
+  EXPECT_EQ(without_means.leaf_accuracy, 0.0);
+  EXPECT_THROW(EvaluateNearestClassMean(scene, Map().tree, Map().visibility,
+                                        {static_cast<uint32_t>(scene.NumObservations())}),
+               std::invalid_argument);
 }
 
 TEST_F(TinyCityTrainerTest, ReachesNinetyNinePercentOnItsTrainingObservations) {

@@ -65,7 +65,9 @@ std::vector<std::pair<std::string, NetworkEvaluation>> EvaluateHeldOut(const Net
   std::vector<std::pair<std::string, NetworkEvaluation>> evaluations = {
       {"held_out", EvaluateNetwork(network, map.scene(), map.label_tree(), held_out)},
       {"held_out_masked",
-       EvaluateNetwork(network, map.scene(), map.label_tree(), held_out, &map.visibility())}};
+       EvaluateNetwork(network, map.scene(), map.label_tree(), held_out, &map.visibility())},
+      {"held_out_nearest_class_mean",
+       EvaluateNearestClassMean(map.scene(), map.label_tree(), map.visibility(), held_out)}};
   std::cout << fmt::format("held-out observations ({:.1f} %), accuracy in %:\n", 100 * fraction);
   std::string header;
   for (int level = 1; level <= map.label_tree().levels(); ++level) {
@@ -74,6 +76,8 @@ std::vector<std::pair<std::string, NetworkEvaluation>> EvaluateHeldOut(const Net
   std::cout << fmt::format("  {:<16}{:>9}  {} | {:>6}\n", "decoding", "samples", header, "point");
   PrintEvaluation("argmax", evaluations[0].second);
   PrintEvaluation("visibility mask", evaluations[1].second);
+  // The yardstick: each point's mean training descriptor, among the points the image sees.
+  PrintEvaluation("class means", evaluations[2].second);
   return evaluations;
 }
 
