@@ -2,6 +2,8 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+
 #include "report/html.h"
 
 namespace hscloc {
@@ -48,8 +50,12 @@ std::string MatchPictureSvg(const LocalizationQuery& query, const PoseResult& re
         query.keypoints.row(result.match_keypoints[i]).transpose().cast<double>() * left_scale;
     const Eigen::Vector3d in_camera = image.cam_from_world * scene.points[result.match_points[i]];
     if (in_camera.z() <= 0) continue;
+    // A pooled final pose also matches points of other retrieved images that this one may not
+    // show.
+    const Eigen::Vector2d in_image = camera.ImgFromPointInCam(in_camera);
+    if (!camera.IsInside(in_image)) continue;
     const Eigen::Vector2d projected =
-        camera.ImgFromPointInCam(in_camera) * right_scale + Eigen::Vector2d(left_width + kGap, 0);
+        in_image * right_scale + Eigen::Vector2d(left_width + kGap, 0);
     const char* kind = inlier ? "inlier" : "outlier";
     const char* color = inlier ? "#1a9850" : "#d73027";
     if (inlier && i % 3 == 0) {
@@ -64,10 +70,10 @@ std::string MatchPictureSvg(const LocalizationQuery& query, const PoseResult& re
     }
   }
   svg += fmt::format(
-      "<text x='4' y='{:.0f}' font-size='12'>{}: {} inliers (green) of {} matches, retrieved {}"
-      "</text></svg>\n",
+      "<text x='4' y='{:.0f}' font-size='12'>{}: {} inliers (green) of {} matches from {} "
+      "retrieved image(s), shown in {}</text></svg>\n",
       kHeight + 15, EscapeHtml(query.name), result.num_inliers, result.match_points.size(),
-      EscapeHtml(image.name));
+      std::max(1, result.num_pooled_candidates), EscapeHtml(image.name));
   return svg;
 }
 
