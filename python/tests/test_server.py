@@ -85,7 +85,9 @@ def test_a_result_holds_pose_inliers_candidates_and_timings(server: str, city: C
     best = max((c for c in result.candidates if c.evaluated), key=lambda c: c.num_inliers)
     assert (result.retrieved_image_id, result.retrieved_image_name) == (best.image_id,
                                                                         best.image_name)
-    assert best.num_inliers == result.num_inliers
+    # The final pose is refined over the matches of every candidate that agrees with the winner,
+    # so it has at least the winner's inliers.
+    assert result.num_inliers >= best.num_inliers
     # The global descriptor's candidates come first; the network's votes follow only after them.
     sources = [c.source for c in result.candidates]
     assert sources[0] == "GLOBAL_DESCRIPTOR"
