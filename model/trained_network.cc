@@ -13,6 +13,18 @@
 
 namespace hscloc {
 
+namespace {
+
+// Counts into `correct[j]` whether the predicted label path equals the true one up to level j.
+void CountLabelPrefix(const LabelTree::Label* predicted, const LabelTree::Label* truth, int levels,
+                      std::vector<size_t>& correct) {
+  for (int level = 0; level < levels && predicted[level] == truth[level]; ++level) {
+    ++correct[level];
+  }
+}
+
+}  // namespace
+
 NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, const LabelTree& tree,
                                   const std::vector<uint32_t>& observation_indices,
                                   const Visibility* visibility_mask) {
@@ -38,10 +50,8 @@ NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, co
         network.Predict(descriptors, {image}, tree, visibility_mask);
     for (size_t i = 0; i < observations.size(); ++i) {
       const uint32_t point = scene.observation_point_indices[observations[i]];
-      const LabelTree::Label* truth = tree.LabelsOfPoint(point);
-      for (int level = 0; level < levels && predictions.labels(i, level) == truth[level]; ++level) {
-        ++correct_levels[level];
-      }
+      CountLabelPrefix(&predictions.labels(i, 0), tree.LabelsOfPoint(point), levels,
+                       correct_levels);
       if (predictions.point_indices(0, i) == point) ++correct_points;
     }
   }
@@ -52,21 +62,6 @@ NetworkEvaluation EvaluateNetwork(const Network& network, const Scene& scene, co
   evaluation.seconds = timer.ElapsedSeconds();
   return evaluation;
 }
-
-namespace {
-
-// Whether `predicted`'s label path equals `truth`'s up to each level, counted into `correct`.
-void CountLabelPrefix(const LabelTree& tree, uint32_t predicted, uint32_t truth,
-                      std::vector<size_t>& correct) {
-  const LabelTree::Label* predicted_labels = tree.LabelsOfPoint(predicted);
-  const LabelTree::Label* true_labels = tree.LabelsOfPoint(truth);
-  for (int level = 0; level < tree.levels() && predicted_labels[level] == true_labels[level];
-       ++level) {
-    ++correct[level];
-  }
-}
-
-}  // namespace
 
 NetworkEvaluation EvaluateNearestClassMean(const Scene& scene, const LabelTree& tree,
                                            const Visibility& visibility,
@@ -111,7 +106,8 @@ NetworkEvaluation EvaluateNearestClassMean(const Scene& scene, const LabelTree& 
     }
     if (best_point < 0) continue;
     const uint32_t truth = scene.observation_point_indices[observation];
-    CountLabelPrefix(tree, static_cast<uint32_t>(best_point), truth, correct_levels);
+    CountLabelPrefix(tree.LabelsOfPoint(static_cast<uint32_t>(best_point)),
+                     tree.LabelsOfPoint(truth), tree.levels(), correct_levels);
     correct_points += best_point == truth;
   }
   const double count = std::max<double>(1, evaluation.num_observations);
