@@ -134,6 +134,8 @@ void NetworkOptions::Check() const {
   THROW_CHECK_MSG(node_output_dim >= 0 && node_output_dim <= kMaxNodeOutputDim,
                   "NetworkOptions.node_output_dim = {} (0 .. {})", node_output_dim,
                   kMaxNodeOutputDim);
+  THROW_CHECK_MSG(!descriptor_shortcut || pooled_point_rows,
+                  "NetworkOptions.descriptor_shortcut needs pooled_point_rows");
 }
 
 NetworkOptions NetworkOptions::PaperFaithful() {
@@ -147,7 +149,9 @@ bool NetworkOptions::operator==(const NetworkOptions& other) const {
   return channels == other.channels && trunk_channels == other.trunk_channels &&
          embedding_dim == other.embedding_dim && conditioned_layers == other.conditioned_layers &&
          node_conditioning == other.node_conditioning && node_output_dim == other.node_output_dim &&
-         pooled_point_rows == other.pooled_point_rows && masked_decoding == other.masked_decoding;
+         pooled_point_rows == other.pooled_point_rows &&
+         descriptor_shortcut == other.descriptor_shortcut &&
+         masked_decoding == other.masked_decoding;
 }
 
 torch::Tensor ChildNodesOf(const LabelTree& tree, const int64_t* parent_nodes, int64_t rows) {
@@ -206,6 +210,10 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
     const int64_t children = shape.nodes_per_depth.at(level + 1);
     node_rows_first_ = shape.FirstNodeOfDepth(level + 1);
     projection_ = register_module("projection", torch::nn::Linear(channels, node_output_dim_));
+    if (options.descriptor_shortcut) {
+      shortcut_scale_ =
+          register_parameter("shortcut_scale", torch::full({1}, kInitialShortcutScale));
+    }
     if (!pooled_) {
       node_rows_ = register_parameter(
           "node_rows", torch::zeros({has_choice ? children : 1, node_output_dim_ + 1}));
@@ -235,8 +243,13 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
     beta_heads_[i]->bias.zero_();
   }
   if (node_output_dim_ > 0) {
-    // Rows of unit-variance logits for unit-variance projections; biases start at 0.
-    torch::nn::init::kaiming_normal_(projection_->weight, 0, torch::kFanIn, torch::kLinear);
+    // Rows of unit-variance logits for unit-variance projections; biases start at 0. Beside the
+    // descriptor shortcut the projection starts at zero: the level starts as the class means.
+    if (shortcut_scale_.defined()) {
+      projection_->weight.zero_();
+    } else {
+      torch::nn::init::kaiming_normal_(projection_->weight, 0, torch::kFanIn, torch::kLinear);
+    }
     projection_->bias.zero_();
     if (!pooled_) InitializeOutputRows(node_rows_, node_output_dim_);
   } else {
@@ -276,8 +289,10 @@ torch::Tensor LevelImpl::ConditionedLinear(int layer, const torch::Tensor& featu
   return conditioned_[layer](features);
 }
 
-torch::Tensor LevelImpl::Project(const torch::Tensor& features) {
-  const torch::Tensor projected = projection_(features);
+torch::Tensor LevelImpl::Project(const torch::Tensor& features,
+                                 const torch::Tensor& unit_descriptors) {
+  torch::Tensor projected = projection_(features);
+  if (shortcut_scale_.defined()) projected = projected + shortcut_scale_ * unit_descriptors;
   return torch::cat({projected, torch::ones({projected.size(0), 1}, projected.options())}, 1);
 }
 
@@ -289,7 +304,8 @@ torch::Tensor LevelImpl::Logits(const torch::Tensor& features, const torch::Tens
   // [R, branching, r + 1] rows against [R, r + 1, 1] projections with a constant 1 for the bias.
   const torch::Tensor gathered = torch::nn::functional::embedding(
       rows, node_rows_, torch::nn::functional::EmbeddingFuncOptions().sparse(sparse_node_rows_));
-  const torch::Tensor logits = torch::bmm(gathered, Project(features).unsqueeze(2)).squeeze(2);
+  const torch::Tensor logits =
+      torch::bmm(gathered, Project(features, torch::Tensor()).unsqueeze(2)).squeeze(2);
   // A row without children (a path that left the tree) keeps finite logits.
   const torch::Tensor absent = exists.logical_not().logical_and(exists.any(1, true));
   return logits.masked_fill(absent, -std::numeric_limits<float>::infinity());
@@ -331,6 +347,7 @@ LevelWeights LevelImpl::CpuWeights() const {
     weights.node_output_dim = node_output_dim_;
     weights.projection_weight = data(projection_->weight);
     weights.projection_bias = data(projection_->bias);
+    if (shortcut_scale_.defined()) weights.shortcut_scale = data(shortcut_scale_);
     if (!pooled_) weights.node_rows = data(node_rows_);
     weights.node_rows_first = node_rows_first_;
   } else {
@@ -378,14 +395,24 @@ HscNetImpl::HscNetImpl(const NetworkShape& shape, const NetworkOptions& options)
 // ---------------------------------------------------------------------------------------------
 // Network.
 
-Network::Network(const NetworkShape& shape, const NetworkOptions& options, uint64_t seed) {
-  shape.Check();
-  options.Check();
+void CheckOptionsFitShape(const NetworkShape& shape, const NetworkOptions& options) {
   if (options.NeedsNodeCounts() && shape.nodes_per_depth.empty()) {
     ThrowInvalidArgument(
         "NetworkShape.nodes_per_depth is empty, but NetworkOptions.node_conditioning or "
         "node_output_dim need the tree's node counts (NetworkShape::ForTree)");
   }
+  if (options.descriptor_shortcut && options.node_output_dim != shape.descriptor_dim) {
+    ThrowInvalidArgument(
+        "NetworkOptions.descriptor_shortcut needs node_output_dim ({}) equal to the descriptor "
+        "dimension ({})",
+        options.node_output_dim, shape.descriptor_dim);
+  }
+}
+
+Network::Network(const NetworkShape& shape, const NetworkOptions& options, uint64_t seed) {
+  shape.Check();
+  options.Check();
+  CheckOptionsFitShape(shape, options);
   torch::manual_seed(seed);
   impl_ = std::make_unique<Impl>();
   impl_->shape = shape;

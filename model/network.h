@@ -21,6 +21,8 @@
 //                       probability 0.
 //   pooled point rows   logits_c = logsumexp_{p in subtree(c), seen} <u_p, [P h_last, 1]>: one
 //                       row per point shared by all levels, pooled over each child's points.
+//   descriptor shortcut pooled point rows scored against [P h_last + s x, 1], the unit descriptor
+//                       added, P from zero, the rows from the points' mean descriptors.
 // The paper's 1x1 convolutions over one-hot labels and an encoded image id are embedding lookups;
 // the paper's per-position linear modulation is gamma * (W h + b) + beta.
 //
@@ -106,6 +108,14 @@ struct NetworkOptions {
   // fits them all; off: each node has its own row (docs/decisions.md, "Training at city scale").
   // The trainer starts the rows from the points' descriptors.
   bool pooled_point_rows = false;
+  // The descriptor shortcut (needs pooled point rows at the descriptor's width, node_output_dim ==
+  // D): a level scores point p by <u_p, P h + s x> + b_p, the unit descriptor x itself added to the
+  // projection, with P starting at zero and the rows at the points' mean training descriptors. The
+  // untrained network is then the nearest-class-mean matcher among the points each image sees, and
+  // training learns a correction. On Lund it reaches the class means' held-out accuracy at a
+  // seventh of the default's bytes, but places the queries no better (docs/decisions.md, "The
+  // network on real photos"): an option, not a default.
+  bool descriptor_shortcut = false;
   // Trained with the visibility softmax: decode with the visibility mask (the Localizer does so on
   // its own for such a network).
   bool masked_decoding = false;

@@ -23,7 +23,7 @@ constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
 // are the paper's configuration. Version 4 added pooled point rows and masked decoding. Version 5
 // stores the weights flat, by parameter name, with the map-sized tables at half precision when
 // saved for a bundle (docs/decisions.md).
-constexpr int64_t kFormatVersion = 5;
+constexpr int64_t kFormatVersion = 6;
 constexpr int64_t kFirstFlatWeightsVersion = 5;
 
 void WriteInt64Vector(torch::serialize::OutputArchive& archive, const std::string& key,
@@ -101,11 +101,11 @@ void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputAr
   WriteInt64Vector(archive, "format", {kFormatMagic, kFormatVersion});
   WriteInt64Vector(archive, "shape",
                    {shape.descriptor_dim, shape.levels, shape.branching, shape.num_images});
-  WriteInt64Vector(
-      archive, "options",
-      {options.channels, options.embedding_dim, options.conditioned_layers, options.trunk_channels,
-       options.node_conditioning ? 1 : 0, options.node_output_dim,
-       options.pooled_point_rows ? 1 : 0, options.masked_decoding ? 1 : 0});
+  WriteInt64Vector(archive, "options",
+                   {options.channels, options.embedding_dim, options.conditioned_layers,
+                    options.trunk_channels, options.node_conditioning ? 1 : 0,
+                    options.node_output_dim, options.pooled_point_rows ? 1 : 0,
+                    options.masked_decoding ? 1 : 0, options.descriptor_shortcut ? 1 : 0});
   WriteInt64Vector(archive, "nodes_per_depth", shape.nodes_per_depth);
   torch::serialize::OutputArchive weights;
   WriteWeights(network.impl_->module, tables, weights);
@@ -120,7 +120,11 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
                          source, format[0], format[1], kFormatVersion);
   }
   const std::vector<int64_t> s = ReadInt64Vector(archive, "shape", 4, source);
-  const size_t option_count = format[1] == 1 ? 3 : format[1] == 2 ? 4 : format[1] == 3 ? 6 : 8;
+  const size_t option_count = format[1] == 1   ? 3
+                              : format[1] == 2 ? 4
+                              : format[1] == 3 ? 6
+                              : format[1] <= 5 ? 8
+                                               : 9;
   const std::vector<int64_t> o = ReadInt64Vector(archive, "options", option_count, source);
   NetworkShape shape{static_cast<int>(s[0]),
                      static_cast<int>(s[1]),
@@ -139,6 +143,7 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
       options.pooled_point_rows = o[6] != 0;
       options.masked_decoding = o[7] != 0;
     }
+    if (format[1] >= 6) options.descriptor_shortcut = o[8] != 0;
     torch::Tensor nodes;
     if (!archive.try_read("nodes_per_depth", nodes) || nodes.scalar_type() != torch::kInt64 ||
         nodes.dim() != 1) {
@@ -152,9 +157,7 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
   try {
     shape.Check();
     options.Check();
-    if (options.NeedsNodeCounts() && shape.nodes_per_depth.empty()) {
-      ThrowInvalidArgument("NetworkShape.nodes_per_depth missing for per-node tables");
-    }
+    CheckOptionsFitShape(shape, options);
   } catch (const std::invalid_argument& error) {
     ThrowInvalidArgument("{}: {}", source, error.what());
   }

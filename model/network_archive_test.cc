@@ -83,12 +83,13 @@ TEST(NetworkArchiveTest, VersionTwoArchivesLoadAsThePapersNetwork) {
 
 TEST(NetworkArchiveTest, CurrentVersionKeepsOutputTablesDecodingAndCounts) {
   const RandomMap map = MakeRandomMap(12);
-  for (NetworkOptions options : testing_support::HeadVariants(testing_support::SmallOptions())) {
+  for (NetworkOptions options :
+       testing_support::HeadVariants(testing_support::SmallOptions(), map.shape.descriptor_dim)) {
     options.masked_decoding = options.node_output_dim > 0;
     const Network network(map.shape, options, 5);
     std::stringstream stream;
     network.Save(stream);
-    const Network loaded = Network::Load(stream, "v5.pt");
+    const Network loaded = Network::Load(stream, "current.pt");
     EXPECT_EQ(loaded.options(), options);
     EXPECT_EQ(loaded.shape().nodes_per_depth, map.shape.nodes_per_depth);
     const Network expected_network = WithTablesRoundedToHalf(network);
@@ -162,9 +163,11 @@ std::string RewrittenArchive(
   torch::serialize::OutputArchive rewritten;
   for (const std::string& key : archive.keys()) {
     torch::Tensor tensor;
-    if (archive.try_read(key, tensor)) {
-      rewritten.write(key, key == "format" ? torch::tensor(format, torch::kInt64) : tensor);
-    }
+    if (!archive.try_read(key, tensor)) continue;
+    if (key == "format") tensor = torch::tensor(format, torch::kInt64);
+    // Versions 4 and 5 wrote eight options (no descriptor shortcut).
+    if (key == "options" && format[1] <= 5) tensor = tensor.narrow(0, 0, 8);
+    rewritten.write(key, tensor);
   }
   torch::serialize::OutputArchive weights;
   for (const auto& item : NetworkInternals::Module(network)->named_parameters()) {
@@ -176,12 +179,12 @@ std::string RewrittenArchive(
   return bytes.str();
 }
 
-// A version 5 archive whose weights do not fit the network says which weight.
+// An archive whose weights do not fit the network says which weight.
 TEST(NetworkArchiveTest, MismatchedWeightsAreNamed) {
   const RandomMap map = MakeRandomMap(12);
   const Network network(map.shape, testing_support::SmallOptions(), 3);
   std::istringstream input(RewrittenArchive(
-      network, {0x4e435348, 5}, [](const std::string& name, const torch::Tensor& tensor) {
+      network, {0x4e435348, 6}, [](const std::string& name, const torch::Tensor& tensor) {
         return name == "level0.trunk1.weight" ? tensor.t() : tensor;
       }));
   try {
@@ -192,6 +195,23 @@ TEST(NetworkArchiveTest, MismatchedWeightsAreNamed) {
               std::string::npos)
         << error.what();
   }
+}
+
+// Version 5 archives (pooled point rows, before the descriptor shortcut) load as they were.
+TEST(NetworkArchiveTest, VersionFiveArchivesLoadWithoutTheDescriptorShortcut) {
+  const RandomMap map = MakeRandomMap(12);
+  NetworkOptions options = testing_support::SmallOptions();
+  options.node_output_dim = 8;
+  options.pooled_point_rows = true;
+  options.masked_decoding = true;
+  const Network network(map.shape, options, 3);
+  std::istringstream input(
+      RewrittenArchive(network, {0x4e435348, 5},
+                       [](const std::string&, const torch::Tensor& tensor) { return tensor; }));
+  const Network loaded = Network::Load(input, "v5.pt");
+  EXPECT_EQ(loaded.options(), options);
+  EXPECT_FALSE(loaded.options().descriptor_shortcut);
+  EXPECT_TRUE(loaded.HasSameWeights(network));
 }
 
 TEST(NetworkArchiveTest, ArchivesOfAnUnknownVersionAreRejectedByName) {

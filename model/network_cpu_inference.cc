@@ -272,6 +272,7 @@ class CpuForwardPass {
     dense_kernels::Linear(scratch.features.data(), block_rows, channels_, weights.projection_weight,
                           weights.projection_bias, node_output_dim_, false,
                           scratch.projected.data());
+    if (weights.shortcut_scale != nullptr) AddDescriptorShortcut(weights, end - begin, scratch);
     if (weights.point_rows != nullptr) {
       PooledLogits(weights.point_rows, depth, begin, end, scratch);
       return;
@@ -290,6 +291,19 @@ class CpuForwardPass {
                                 weights.node_rows + first * row_width, count, branching, logits);
       if (count == 0) std::fill_n(logits, (run_end - i) * branching, 0.0f);
       i = run_end;
+    }
+  }
+
+  // projected += s x for the descriptor shortcut, x the row's unit descriptor (the levels' input
+  // scale undone).
+  void AddDescriptorShortcut(const LevelWeights& weights, int64_t block_rows,
+                             BlockScratch& scratch) const {
+    const int64_t dim = shape_.descriptor_dim;
+    const float factor = *weights.shortcut_scale / current_scale_;
+    for (int64_t i = 0; i < block_rows; ++i) {
+      const float* descriptor = scaled_descriptors_.data() + scratch.descriptor_of_row[i] * dim;
+      float* projected = scratch.projected.data() + i * dim;
+      for (int64_t d = 0; d < dim; ++d) projected[d] += factor * descriptor[d];
     }
   }
 

@@ -41,14 +41,18 @@ TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
     base.embedding_dim = 24;
     base.conditioned_layers = layers;
     base.trunk_channels = 40 + 16 * layers;  // differs from the channels
-    for (const NetworkOptions& options : testing_support::HeadVariants(base)) {
-      const Network network(fixture.shape, options, 100 + layers);
+    for (const NetworkOptions& options :
+         testing_support::HeadVariants(base, fixture.shape.descriptor_dim)) {
+      const Network network = testing_support::WithRandomProjections(
+          Network(fixture.shape, options, 100 + layers), 200 + layers);
       for (const Visibility* mask :
            {static_cast<const Visibility*>(nullptr), &fixture.visibility}) {
         SCOPED_TRACE(testing::Message()
                      << layers << " conditioned layers, node conditioning "
                      << options.node_conditioning << ", node output rows "
-                     << options.node_output_dim << ", mask " << (mask != nullptr));
+                     << options.node_output_dim << ", pooled " << options.pooled_point_rows
+                     << ", shortcut " << options.descriptor_shortcut << ", mask "
+                     << (mask != nullptr));
         ExpectSamePredictions(
             network.Predict(descriptors, images, fixture.tree, mask),
             NetworkInternals::PredictWithTorch(network, descriptors, images, fixture.tree, mask));

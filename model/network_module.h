@@ -48,6 +48,8 @@ struct LevelWeights {
   // Pooled point rows (NetworkOptions::pooled_point_rows): the network's shared table
   // [points, r + 1], row = leaf rank; node_rows is null then.
   const float* point_rows = nullptr;
+  // The descriptor shortcut's scale s ([1]); null without the shortcut.
+  const float* shortcut_scale = nullptr;
 };
 
 // One level of the network (see model/network.h for the equations).
@@ -74,8 +76,9 @@ class LevelImpl : public torch::nn::Module {
   // The last conditioned layer's features [R, C] of R (descriptor, image, prefix) rows.
   torch::Tensor Features(const torch::Tensor& descriptors, const torch::Tensor& image_indices,
                          const torch::Tensor& prefix_labels, const torch::Tensor& parent_nodes);
-  // [R, r + 1]: the projection of the features with a constant 1 appended (the rows' bias).
-  torch::Tensor Project(const torch::Tensor& features);
+  // [R, r + 1]: the projection of the features (plus the scaled unit descriptors [R, D] of the
+  // same rows, with the descriptor shortcut) with a constant 1 appended (the rows' bias).
+  torch::Tensor Project(const torch::Tensor& features, const torch::Tensor& unit_descriptors);
   // Teacher-forced logits [R, branching] of R (descriptor, image, prefix) rows (not for pooled
   // point rows: PooledPointLogits).
   torch::Tensor forward(const torch::Tensor& descriptors, const torch::Tensor& image_indices,
@@ -115,8 +118,18 @@ class LevelImpl : public torch::nn::Module {
   int64_t node_rows_first_ = 0;
   bool sparse_node_rows_ = false;
   bool pooled_ = false;
+  // The descriptor shortcut's learned scale s ([1]); undefined without the shortcut.
+  torch::Tensor shortcut_scale_;
 };
 TORCH_MODULE(Level);
+
+// The scale s the descriptor shortcut starts at: cosines of a unit descriptor and unit rows,
+// times s, are the logits of a softmax sharp enough to train on (cosine classifiers use 10 to 30).
+inline constexpr float kInitialShortcutScale = 16.0f;
+
+// Throws std::invalid_argument when the options need what the shape lacks (node counts for
+// per-node tables, rows at the descriptor's width for the descriptor shortcut).
+void CheckOptionsFitShape(const NetworkShape& shape, const NetworkOptions& options);
 
 // Per row of a batch, the ids of the children of its parent node [R, branching], -1 past the
 // parent's last child or for parents < 0 (a path that left the tree).

@@ -58,12 +58,35 @@ TEST(NetworkOptionsTest, ChecksNameTheField) {
       std::invalid_argument);
 }
 
+TEST(NetworkOptionsTest, DescriptorShortcutNeedsPooledRowsAtTheDescriptorsWidth) {
+  const RandomMap map = MakeRandomMap(1);
+  NetworkOptions options = SmallOptions();
+  options.descriptor_shortcut = true;
+  options.node_output_dim = map.shape.descriptor_dim;
+  EXPECT_THROW(
+      try { options.Check(); } catch (const std::invalid_argument& error) {
+        EXPECT_THAT(error.what(), HasSubstr("descriptor_shortcut needs pooled_point_rows"));
+        throw;
+      },
+      std::invalid_argument);
+  options.pooled_point_rows = true;
+  EXPECT_NO_THROW(Network(map.shape, options, 1));
+  options.node_output_dim = 8;
+  EXPECT_THROW(
+      try { Network(map.shape, options, 1); } catch (const std::invalid_argument& error) {
+        EXPECT_THAT(error.what(), HasSubstr("equal to the descriptor dimension (24)"));
+        throw;
+      },
+      std::invalid_argument);
+}
+
 TEST(NetworkOptionsTest, PerNodeTablesNeedTheTreesNodeCounts) {
   const RandomMap map = MakeRandomMap(1);
   NetworkShape without_counts = map.shape;
   without_counts.nodes_per_depth.clear();
   EXPECT_NO_THROW(Network(without_counts, NetworkOptions::PaperFaithful(), 1));
-  for (const NetworkOptions& options : testing_support::HeadVariants(SmallOptions())) {
+  for (const NetworkOptions& options :
+       testing_support::HeadVariants(SmallOptions(), map.shape.descriptor_dim)) {
     if (!options.NeedsNodeCounts()) continue;
     EXPECT_THROW(
         try { Network(without_counts, options, 1); } catch (const std::invalid_argument& error) {

@@ -55,8 +55,8 @@ inline RandomMap MakeRandomMap(uint64_t seed) {
 }
 
 // The four combinations of the two per-node options (the first is the paper's network), then
-// pooled point rows.
-inline std::vector<NetworkOptions> HeadVariants(NetworkOptions base) {
+// pooled point rows, then pooled point rows at the descriptor's width with the descriptor shortcut.
+inline std::vector<NetworkOptions> HeadVariants(NetworkOptions base, int descriptor_dim) {
   std::vector<NetworkOptions> variants;
   for (const bool node_conditioning : {false, true}) {
     for (const int node_output_dim : {0, 8}) {
@@ -67,7 +67,24 @@ inline std::vector<NetworkOptions> HeadVariants(NetworkOptions base) {
   }
   base.pooled_point_rows = true;
   variants.push_back(base);
+  base.node_output_dim = descriptor_dim;
+  base.descriptor_shortcut = true;
+  variants.push_back(base);
   return variants;
+}
+
+// Beside the descriptor shortcut the projections start at zero, which would leave the layers
+// before them out of a comparison of two inference paths: they get random weights here.
+inline Network WithRandomProjections(Network network, uint64_t seed) {
+  torch::NoGradGuard no_grad;
+  torch::manual_seed(seed);
+  for (auto& item : NetworkInternals::Module(network)->named_parameters()) {
+    const std::string& name = item.key();
+    if (name.size() >= 17 && name.compare(name.size() - 17, 17, "projection.weight") == 0) {
+      item.value().normal_(0, 0.3);
+    }
+  }
+  return network;
 }
 
 inline NetworkOptions SmallOptions() {

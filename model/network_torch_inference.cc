@@ -133,7 +133,8 @@ class TorchForwardPass {
   // (a row without a mask ranges over every point under its parent).
   torch::Tensor PooledLogits(Level level, const torch::Tensor& features, int depth) {
     constexpr size_t kMaxCandidates = size_t{1} << 21;
-    const torch::Tensor projected = level->Project(features);
+    const torch::Tensor projected =
+        level->Project(features, descriptors_.index_select(0, row_descriptor_));
     std::vector<torch::Tensor> chunks;
     for (int64_t begin = 0; begin < num_rows_;) {
       int64_t end = begin;

@@ -143,6 +143,7 @@ void WriteNetworkToBundle(
                      {"node_conditioning", network_options.node_conditioning},
                      {"node_output_dim", network_options.node_output_dim},
                      {"pooled_point_rows", network_options.pooled_point_rows},
+                     {"descriptor_shortcut", network_options.descriptor_shortcut},
                      {"masked_decoding", network_options.masked_decoding}};
   json["parameters"] = result.network.NumParameters();
   json["training"] = {

@@ -42,17 +42,18 @@ void KeepFreedMemoryForReuse() {
 
 // Pooled point rows start from the data: the row of point p is the unit vector along A x_p, the
 // sum over p's training observations x (unit descriptors) of a fixed Gaussian projection A
-// (r x D). Every level then starts as a nearest-neighbour matcher among the candidates in that
+// (r x D), or of the identity with the descriptor shortcut (the rows are then the points' class
+// means). Every level then starts as a nearest-neighbour matcher among the candidates in that
 // projected space and need only learn to map a descriptor near A x, a smooth function of it;
 // from random rows it must memorize which row is whose, which took far longer than the budget
 // at city scale (docs/decisions.md).
 void InitializePointRowsFromDescriptors(const Scene& scene, const std::vector<uint32_t>& training,
-                                        const PointCandidates& candidates,
+                                        const PointCandidates& candidates, bool identity,
                                         torch::Tensor& point_rows) {
   torch::NoGradGuard no_grad;
   const int64_t dim = scene.Dimension();
   const int64_t rows_dim = point_rows.size(1) - 1;
-  const torch::Tensor projection = torch::randn({dim, rows_dim});
+  const torch::Tensor projection = identity ? torch::eye(dim) : torch::randn({dim, rows_dim});
   torch::Tensor sums = torch::zeros({point_rows.size(0), rows_dim});
   constexpr size_t kBlock = 1 << 15;
   for (size_t begin = 0; begin < training.size(); begin += kBlock) {
@@ -193,7 +194,8 @@ Trainer::Trainer(const Scene& scene, const LabelTree& tree, const TrainerOptions
   CreateOptimizers(resume_from);
   PrepareVisibilityAndCheckSample();
   if (point_candidates_ != nullptr && resume_from == nullptr) {
-    InitializePointRowsFromDescriptors(scene_, training_, *point_candidates_, module_->point_rows);
+    InitializePointRowsFromDescriptors(scene_, training_, *point_candidates_,
+                                       network_options_.descriptor_shortcut, module_->point_rows);
   }
 }
 
@@ -270,6 +272,9 @@ TrainingResult Trainer::Run() {
   timer_.Restart();
   sums_ = torch::zeros({1 + levels_}, torch::TensorOptions().device(device_));
   learning_rate_ = ScheduledLearningRate(options_, Progress());
+  // The descriptor shortcut starts as the nearest-class-mean matcher: a check before the first
+  // step lets early stopping keep it where training would only lose held-out accuracy.
+  if (network_options_.descriptor_shortcut && state_.iteration == 0) CheckHeldOut();
   while (!budget_.Spent(state_.iteration, Elapsed()) && !StopRequested()) {
     Step();
     progress_->Advance();
@@ -326,7 +331,7 @@ BatchLoss Trainer::Loss(const Batch& batch) {
       // pull on every point of the true child and a push on all the others, would otherwise
       // swamp each row's own signal (Adam scales every row's update to the same size).
       const bool owns_rows = level == finest_level_with_choice_;
-      logits = PooledPointLogits(level_module->Project(features),
+      logits = PooledPointLogits(level_module->Project(features, descriptors),
                                  owns_rows ? module_->point_rows : module_->point_rows.detach(),
                                  batch.candidates[level], tree_.branching(), Pooling::kLogSumExp,
                                  options_.sparse_node_updates);
@@ -361,7 +366,10 @@ void Trainer::FlushLog(int64_t iteration) {
 }
 
 bool Trainer::CheckDue() const {
-  const double next = static_cast<double>(state_.checks.size() + 1) / options_.evaluations;
+  const size_t checks_after_start =
+      std::count_if(state_.checks.begin(), state_.checks.end(),
+                    [](const HeldOutCheck& check) { return check.iteration > 0; });
+  const double next = static_cast<double>(checks_after_start + 1) / options_.evaluations;
   return checking_ && next < 1 && Progress() >= next;
 }
 

@@ -180,6 +180,38 @@ TEST_F(TinyCityTrainerTest, NearestClassMeanPlacesHeldOutObservationsByTheirPoin
                std::invalid_argument);
 }
 
+// The descriptor shortcut starts as the nearest-class-mean matcher among the points each image
+// sees (the rows at the class means, the projections at zero), checks that before its first step,
+// and keeps the best check: it ends no worse than the class means, short of sampling noise.
+TEST_F(TinyCityTrainerTest, DescriptorShortcutStartsAsTheClassMeansAndEndsNoWorse) {
+  TrainerOptions options = QuickOptions(60);
+  options.network.node_conditioning = false;
+  options.network.node_output_dim = static_cast<int>(Map().scene.Dimension());
+  options.network.pooled_point_rows = true;
+  options.network.descriptor_shortcut = true;
+  options.evaluations = 3;
+  const std::vector<uint32_t> held_out =
+      HeldOutObservations(Map().scene, options.holdout_fraction, options.holdout_seed);
+  options.evaluation_observations = static_cast<int64_t>(held_out.size());
+  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
+  const NetworkEvaluation class_means =
+      EvaluateNearestClassMean(Map().scene, Map().tree, Map().visibility, held_out);
+  ASSERT_GE(result.held_out_checks.size(), 2u);
+  EXPECT_EQ(result.held_out_checks.front().iteration, 0);
+  // Ties between two rows may fall either way under another summation order: one observation.
+  const double one = 1.0 / static_cast<double>(held_out.size());
+  EXPECT_NEAR(result.held_out_checks.front().point_accuracy, class_means.leaf_accuracy, one + 1e-9);
+  // Checks after the start keep their schedule (a third and two thirds of the budget, the end).
+  EXPECT_EQ(result.held_out_checks.size(), 4u);
+  const NetworkEvaluation trained =
+      EvaluateNetwork(result.network, Map().scene, Map().tree, held_out, &Map().visibility);
+  const double p = class_means.leaf_accuracy;
+  const double standard_error = std::sqrt(p * (1 - p) * one);
+  EXPECT_GE(trained.leaf_accuracy, p - 2 * standard_error - one);
+  EXPECT_TRUE(result.network.options().descriptor_shortcut);
+  EXPECT_TRUE(result.network.options().masked_decoding);
+}
+
 TEST_F(TinyCityTrainerTest, ReachesNinetyNinePercentOnItsTrainingObservations) {
   TrainerOptions options = QuickOptions(400);
   options.visibility_softmax = true;

@@ -297,6 +297,12 @@ TEST_F(CliTest, BadInputsFailWithAClearMessage) {
       Hscloc(fmt::format("eval --gt {} --results {}", GroundTruth(), results), temp_ / "eval.log"),
       0);
   EXPECT_THAT(ReadText(temp_ / "eval.log"), HasSubstr("'stranger.jpg' is not a query"));
+
+  EXPECT_NE(Hscloc(fmt::format("train --map {} --output shortcut --node-output-dim 8", Map()),
+                   temp_ / "train.log"),
+            0);
+  EXPECT_THAT(ReadText(temp_ / "train.log"),
+              HasSubstr("--output shortcut scores points at the descriptor's width"));
 }
 
 }  // namespace

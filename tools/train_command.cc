@@ -81,16 +81,26 @@ std::vector<std::pair<std::string, NetworkEvaluation>> EvaluateHeldOut(const Net
   return evaluations;
 }
 
-// The output layers `output` names (shared, node, pooled), or the map's default when empty;
-// node rows keep an explicit --node-output-dim.
-void ChooseOutputLayers(const std::string& output, size_t num_points, bool node_output_dim_given,
-                        NetworkOptions& network) {
-  const NetworkOptions defaults = DefaultNetworkOptions(num_points);
+// The output layers `output` names (shared, node, pooled, shortcut), or the map's default
+// `defaults` when empty; node rows keep an explicit --node-output-dim.
+void ChooseOutputLayers(const std::string& output, const NetworkOptions& defaults,
+                        int descriptor_dim, bool node_output_dim_given, NetworkOptions& network) {
+  network.descriptor_shortcut = false;
   if (output.empty()) {
     network.pooled_point_rows = defaults.pooled_point_rows && network.node_output_dim > 0;
   } else if (output == "shared") {
     network.node_output_dim = 0;
     network.pooled_point_rows = false;
+  } else if (output == "shortcut") {
+    if (node_output_dim_given && network.node_output_dim != descriptor_dim) {
+      ThrowInvalidArgument(
+          "--output shortcut scores points at the descriptor's width: --node-output-dim {} is not "
+          "the map's descriptor dimension {}",
+          network.node_output_dim, descriptor_dim);
+    }
+    network.node_output_dim = descriptor_dim;
+    network.pooled_point_rows = true;
+    network.descriptor_shortcut = true;
   } else {
     if (!node_output_dim_given && network.node_output_dim == 0) {
       network.node_output_dim = DefaultNetworkOptions(kMinPointsForNodeOutputRows).node_output_dim;
@@ -136,12 +146,14 @@ int RunTrain(TrainArguments& arguments) {
     options.network.node_output_dim = paper.node_output_dim;
     arguments.visibility_softmax = false;
     options.schedule = LearningRateSchedule::kHalving;
-  } else if (!arguments.node_output_dim_given) {
-    options.network.node_output_dim =
-        DefaultNetworkOptions(map->scene().NumPoints()).node_output_dim;
+  }
+  const int descriptor_dim = static_cast<int>(map->scene().Dimension());
+  const NetworkOptions defaults = DefaultNetworkOptions(map->scene().NumPoints());
+  if (!arguments.paper && !arguments.node_output_dim_given) {
+    options.network.node_output_dim = defaults.node_output_dim;
   }
   if (!arguments.paper) {
-    ChooseOutputLayers(arguments.output, map->scene().NumPoints(), arguments.node_output_dim_given,
+    ChooseOutputLayers(arguments.output, defaults, descriptor_dim, arguments.node_output_dim_given,
                        options.network);
   }
   if (!arguments.conditioning.empty()) {
@@ -244,8 +256,10 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
       ->add_option("--output", arguments->output,
                    "Output layers: shared (the paper's Linear(C, branching) per level), node (a "
                    "row per tree node), pooled (a row per point, pooled over each child's points "
-                   "the image sees); default from the map's size")
-      ->check(CLI::IsMember({"shared", "node", "pooled"}));
+                   "the image sees), shortcut (pooled rows at the descriptor's width, started "
+                   "at the points' mean descriptors, the descriptor added to the last layer's "
+                   "projection); default from the map's size")
+      ->check(CLI::IsMember({"shared", "node", "pooled", "shortcut"}));
   command
       ->add_option("--conditioning", arguments->conditioning,
                    "What the generator reads beside the image: labels (the sum of one embedding "
