@@ -95,6 +95,7 @@ ImageExtractionSummary ExtractImagesToH5(const std::filesystem::path& image_dir,
   ExtractorPool pool(options.extractor);
   // A missing or bad model fails here, before the output file is touched.
   pool.Release(pool.Acquire());
+  if (out_path.has_parent_path()) std::filesystem::create_directories(out_path.parent_path());
   H5FeatureWriter writer(out_path, options.precision, H5WriteMode::kAppend);
   ImageExtractionSummary summary;
   summary.num_images = static_cast<int64_t>(image_names.size());

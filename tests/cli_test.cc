@@ -22,11 +22,7 @@ namespace {
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
 using testing::ReadText;
-
-// Runs `hscloc ARGUMENTS`, returning its exit status; its output goes to `log`.
-int Hscloc(const std::string& arguments, const fs::path& log) {
-  return testing::RunCommand(fmt::format("{} {}", HSCLOC_BINARY, arguments), log.string());
-}
+using testing::RunHscloc;
 
 class CliTest : public ::testing::Test {
  protected:
@@ -59,9 +55,9 @@ TEST_F(CliTest, LocalizeResumeAndEvaluate) {
   // A first run over the day queries only, then a resumed run over day and night: the day lines
   // stay, the night ones are added, and a half-written line from an interruption is dropped.
   const std::string submission = Temp("out/submission.txt");
-  ASSERT_EQ(Hscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
-                               DayList(), Features(), submission),
-                   temp_ / "day.log"),
+  ASSERT_EQ(RunHscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
+                                  DayList(), Features(), submission),
+                      temp_ / "day.log"),
             0)
       << ReadText(temp_ / "day.log");
   EXPECT_THAT(ReadText(temp_ / "day.log"), HasSubstr("localized"));
@@ -70,11 +66,12 @@ TEST_F(CliTest, LocalizeResumeAndEvaluate) {
   for (const NamedPose& pose : day) EXPECT_EQ(pose.name.find('/'), std::string::npos);
   std::ofstream(submission, std::ios::app) << "day_00049.jpg 0.1 0.2";  // interrupted mid-line
 
-  ASSERT_EQ(Hscloc(fmt::format("localize --map {} --queries {} --queries {} --features {} --out {} "
-                               "--resume",
-                               Map(), DayList(), NightList(), Features(), submission),
-                   temp_ / "resume.log"),
-            0)
+  ASSERT_EQ(
+      RunHscloc(fmt::format("localize --map {} --queries {} --queries {} --features {} --out {} "
+                            "--resume",
+                            Map(), DayList(), NightList(), Features(), submission),
+                temp_ / "resume.log"),
+      0)
       << ReadText(temp_ / "resume.log");
   EXPECT_THAT(ReadText(temp_ / "resume.log"), HasSubstr("resuming: 50 of 100 queries"));
   const std::vector<NamedPose> all = ReadPoses(submission);
@@ -85,10 +82,11 @@ TEST_F(CliTest, LocalizeResumeAndEvaluate) {
   }
 
   const std::string plot = Temp("errors.svg");
-  ASSERT_EQ(Hscloc(fmt::format("eval --gt {} --results {} --conditions day:{},night:{} --plot {}",
-                               GroundTruth(), submission, DayList(), NightList(), plot),
-                   temp_ / "eval.log"),
-            0)
+  ASSERT_EQ(
+      RunHscloc(fmt::format("eval --gt {} --results {} --conditions day:{},night:{} --plot {}",
+                            GroundTruth(), submission, DayList(), NightList(), plot),
+                temp_ / "eval.log"),
+      0)
       << ReadText(temp_ / "eval.log");
   const std::string table = ReadText(temp_ / "eval.log");
   std::cout << table;
@@ -118,9 +116,9 @@ TEST_F(CliTest, LocalizeResumeAndEvaluate) {
 // after the subcommand) writes the same submission as the offline batch.
 TEST_F(CliTest, ClientBatchThroughTheServerEqualsOfflineLocalize) {
   const std::string offline = Temp("offline.txt");
-  ASSERT_EQ(Hscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
-                               NightList(), Features(), offline),
-                   temp_ / "offline.log"),
+  ASSERT_EQ(RunHscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
+                                  NightList(), Features(), offline),
+                      temp_ / "offline.log"),
             0);
   testing::HsclocProcess server({"serve", "--map", Map(), "--bind", "tcp://127.0.0.1:0",
                                  "--admin-bind", "tcp://127.0.0.1:0", "--workers", "2"},
@@ -154,11 +152,11 @@ TEST(HsclocCliTest, LogLevelWorksOnEitherSideOfTheSubcommand) {
   const fs::path log = temp.path() / "inspect.log";
   for (const std::string& arguments : {std::string("--log-level bogus inspect /no/such/map"),
                                        std::string("inspect /no/such/map --log-level bogus")}) {
-    EXPECT_EQ(Hscloc(arguments, log), 2) << arguments;
+    EXPECT_EQ(RunHscloc(arguments, log), 2) << arguments;
     EXPECT_THAT(ReadText(log), HasSubstr("unknown log level 'bogus'")) << arguments;
   }
   // A known level after the subcommand is taken: the command runs (and names the missing map).
-  EXPECT_EQ(Hscloc("inspect /no/such/map --log-level warn", log), 2);
+  EXPECT_EQ(RunHscloc("inspect /no/such/map --log-level warn", log), 2);
   EXPECT_THAT(ReadText(log), HasSubstr("/no/such/map"));
   EXPECT_THAT(ReadText(log), ::testing::Not(HasSubstr("log level")));
 }
@@ -206,7 +204,7 @@ TEST(ExtractCliTest, WritesHlocFeaturesAndResumes) {
   const std::string extract =
       fmt::format("extract --images {} --list {} --feature xfeat --out {} --xfeat-model {}",
                   lund.string(), list.string(), out.string(), (weights / "xfeat.onnx").string());
-  ASSERT_EQ(Hscloc(extract, temp / "first.log"), 0) << ReadText(temp / "first.log");
+  ASSERT_EQ(RunHscloc(extract, temp / "first.log"), 0) << ReadText(temp / "first.log");
   EXPECT_THAT(ReadText(temp / "first.log"), HasSubstr("2 extracted"));
   {
     // Closed before the second run: HDF5 locks an open file.
@@ -218,14 +216,14 @@ TEST(ExtractCliTest, WritesHlocFeaturesAndResumes) {
     EXPECT_EQ(features.scores.size(), 2048);
   }
 
-  ASSERT_EQ(Hscloc(extract, temp / "second.log"), 0) << ReadText(temp / "second.log");
+  ASSERT_EQ(RunHscloc(extract, temp / "second.log"), 0) << ReadText(temp / "second.log");
   EXPECT_THAT(ReadText(temp / "second.log"), HasSubstr("0 extracted"));
   EXPECT_THAT(ReadText(temp / "second.log"), HasSubstr("2 already there"));
 
-  EXPECT_EQ(
-      Hscloc(fmt::format("extract --images {} --out {}", (temp / "nowhere").string(), out.string()),
-             temp / "bad.log"),
-      2);
+  EXPECT_EQ(RunHscloc(fmt::format("extract --images {} --out {}", (temp / "nowhere").string(),
+                                  out.string()),
+                      temp / "bad.log"),
+            2);
   EXPECT_THAT(ReadText(temp / "bad.log"), HasSubstr("nowhere does not exist"));
 }
 
@@ -236,9 +234,9 @@ TEST(TriangulateCliTest, BadInputsFailWithAClearMessage) {
   testing::TempDir temp;
   const auto triangulate = [&](const fs::path& model, const fs::path& features,
                                const std::string& extra, const fs::path& log) {
-    return Hscloc(fmt::format("triangulate --model {} --features {} --out {} {}", model.string(),
-                              features.string(), (temp / "out").string(), extra),
-                  log);
+    return RunHscloc(fmt::format("triangulate --model {} --features {} --out {} {}", model.string(),
+                                 features.string(), (temp / "out").string(), extra),
+                     log);
   };
   EXPECT_NE(triangulate(temp / "nowhere", fountain / "database.db", "", temp / "model.log"), 0);
   EXPECT_THAT(ReadText(temp / "model.log"), HasSubstr("nowhere"));
@@ -277,29 +275,29 @@ TEST_F(CliTest, InterruptedTrainingKeepsTheNetworkSoFar) {
 TEST_F(CliTest, BadInputsFailWithAClearMessage) {
   const std::string bad_list = Temp("bad.txt");
   std::ofstream(bad_list) << "query/day/day_00000.jpg NO_SUCH_MODEL 10 10 1 2 3\n";
-  EXPECT_NE(Hscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
-                               bad_list, Features(), Temp("s.txt")),
-                   temp_ / "bad.log"),
+  EXPECT_NE(RunHscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
+                                  bad_list, Features(), Temp("s.txt")),
+                      temp_ / "bad.log"),
             0);
   EXPECT_THAT(ReadText(temp_ / "bad.log"), HasSubstr("bad.txt:1"));
 
   const std::string unknown = Temp("unknown.txt");
   std::ofstream(unknown) << "nowhere.jpg PINHOLE 640 480 500 500 320 240\n";
-  EXPECT_NE(Hscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
-                               unknown, Features(), Temp("s.txt")),
-                   temp_ / "unknown.log"),
+  EXPECT_NE(RunHscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
+                                  unknown, Features(), Temp("s.txt")),
+                      temp_ / "unknown.log"),
             0);
   EXPECT_THAT(ReadText(temp_ / "unknown.log"), HasSubstr("no features for query 'nowhere.jpg'"));
 
   const std::string results = Temp("results.txt");
   std::ofstream(results) << "stranger.jpg 1 0 0 0 0 0 0\n";
-  EXPECT_NE(
-      Hscloc(fmt::format("eval --gt {} --results {}", GroundTruth(), results), temp_ / "eval.log"),
-      0);
+  EXPECT_NE(RunHscloc(fmt::format("eval --gt {} --results {}", GroundTruth(), results),
+                      temp_ / "eval.log"),
+            0);
   EXPECT_THAT(ReadText(temp_ / "eval.log"), HasSubstr("'stranger.jpg' is not a query"));
 
-  EXPECT_NE(Hscloc(fmt::format("train --map {} --output shortcut --node-output-dim 8", Map()),
-                   temp_ / "train.log"),
+  EXPECT_NE(RunHscloc(fmt::format("train --map {} --output shortcut --node-output-dim 8", Map()),
+                      temp_ / "train.log"),
             0);
   EXPECT_THAT(ReadText(temp_ / "train.log"),
               HasSubstr("--output shortcut scores points at the descriptor's width"));

@@ -15,12 +15,19 @@
 #include <thread>
 #include <vector>
 
+#include "util/testing.h"
+
 namespace hscloc::testing {
 
 // The whole of a text file; empty when it cannot be read.
 inline std::string ReadText(const std::filesystem::path& path) {
   std::ifstream file(path);
   return std::string(std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>());
+}
+
+// Runs `hscloc ARGUMENTS` to its end, its output in `log`; returns its exit status.
+inline int RunHscloc(const std::string& arguments, const std::filesystem::path& log) {
+  return RunCommand(fmt::format("{} {}", HSCLOC_BINARY, arguments), log.string());
 }
 
 class HsclocProcess {

@@ -16,6 +16,7 @@ void AddInspectCommand(CLI::App& app, CommandRunner& run);
 void AddTrainCommand(CLI::App& app, CommandRunner& run);
 void AddLocalizeCommand(CLI::App& app, CommandRunner& run);
 void AddEvalCommand(CLI::App& app, CommandRunner& run);
+void AddPipelineCommand(CLI::App& app, CommandRunner& run);
 void AddServeCommand(CLI::App& app, CommandRunner& run);
 void AddKeygenCommand(CLI::App& app, CommandRunner& run);
 void AddDemoCommand(CLI::App& app, CommandRunner& run);

@@ -33,6 +33,7 @@ int main(int argc, char** argv) {
   hscloc::AddTrainCommand(app, run);
   hscloc::AddLocalizeCommand(app, run);
   hscloc::AddEvalCommand(app, run);
+  hscloc::AddPipelineCommand(app, run);
   hscloc::AddServeCommand(app, run);
   hscloc::AddKeygenCommand(app, run);
   hscloc::AddDemoCommand(app, run);

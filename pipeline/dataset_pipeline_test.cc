@@ -1,0 +1,166 @@
+#include "pipeline/dataset_pipeline.h"
+
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "features/image_extraction.h"
+#include "scene/colmap_io.h"
+#include "scene/feature_io.h"
+#include "scene/query_io.h"
+#include "util/testing.h"
+
+namespace hscloc {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+
+PipelineOptions NearestNeighborOptions(const std::string& colmap) {
+  PipelineOptions options;
+  options.matcher = Matcher::kNearestNeighbor;
+  options.colmap_executable = colmap;
+  options.show_progress = false;
+  return options;
+}
+
+std::vector<bool> SkippedSteps(const PipelineSummary& summary) {
+  std::vector<bool> skipped;
+  for (const PipelineStepReport& step : summary.steps) skipped.push_back(step.skipped);
+  return skipped;
+}
+
+std::string ReadText(const fs::path& path) {
+  std::ifstream file(path);
+  std::stringstream text;
+  text << file.rdbuf();
+  return text.str();
+}
+
+TEST(DatasetPipelineTest, BadInputWritesNothing) {
+  testing::TempDir dir;
+  fs::create_directories(dir / "not-a-dataset" / "images");
+  std::ostringstream log;
+  const PipelineOptions options = NearestNeighborOptions("colmap");
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { RunDatasetPipeline(dir / "not-a-dataset", dir / "out", options, log); }),
+              HasSubstr("is not a dataset"));
+  EXPECT_FALSE(fs::exists(dir / "out"));
+}
+
+TEST(DatasetPipelineTest, RefusesAnOutputFolderOfAnotherToolOrFeature) {
+  HSCLOC_REQUIRE_REAL_DATA(lund, "lund");
+  testing::TempDir dir;
+  std::ostringstream log;
+  PipelineOptions options = NearestNeighborOptions("colmap");
+  fs::create_directories(dir / "busy");
+  std::ofstream(dir / "busy" / "notes.txt") << "mine\n";
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { RunDatasetPipeline(lund, dir / "busy", options, log); }),
+              HasSubstr("not empty"));
+
+  // A record of SIFT features: the XFeat run must not reuse that folder.
+  fs::create_directories(dir / "sift");
+  std::ofstream(dir / "sift" / "pipeline.json")
+      << "{\"dataset\": \"" << fs::weakly_canonical(lund).string() << "\", \"feature\": \"sift\"}";
+  options.feature = FeatureType::kXFeat;
+  EXPECT_THAT(testing::InvalidArgumentMessage(
+                  [&] { RunDatasetPipeline(lund, dir / "sift", options, log); }),
+              HasSubstr("with sift features"));
+  EXPECT_FALSE(fs::exists(dir / "sift" / "features.partial.h5"));
+}
+
+// Lund with XFeat and the nearest-neighbour matcher (no training): a run that stopped during the
+// extraction resumes after the photos it had written, a finished run does nothing, and a removed
+// map is rebuilt with the submission while the features and the model are kept.
+TEST(DatasetPipelineTest, LundResumesAnInterruptedRunAndSkipsAFinishedOne) {
+  HSCLOC_REQUIRE_REAL_DATA(lund, "lund");
+  HSCLOC_REQUIRE_COLMAP(colmap);
+  testing::TempDir dir;
+  const fs::path out = dir / "out";
+  const PipelineOptions options = NearestNeighborOptions(colmap);
+  std::ostringstream log;
+  // What a run killed after its first chunk of photos leaves.
+  fs::create_directories(out);
+  std::ofstream(out / "pipeline.json") << nlohmann::json{
+      {"dataset", fs::weakly_canonical(lund).string()},
+      {"feature", "xfeat"}}.dump();
+  const std::vector<std::string> photos = DatasetPhotos(FindDatasetLayout(lund));
+  ImageExtractionOptions extraction;
+  extraction.extractor.type = FeatureType::kXFeat;
+  extraction.show_progress = false;
+  ExtractImagesToH5(lund / "images", {photos.begin(), photos.begin() + 3},
+                    out / "features.partial.h5", extraction);
+
+  const PipelineSummary first = RunDatasetPipeline(lund, out, options, log);
+  EXPECT_EQ(SkippedSteps(first), (std::vector<bool>{false, false, false, false}));
+  EXPECT_THAT(first.steps[0].detail,
+              HasSubstr(fmt::format("{} extracted by this run", photos.size() - 3)));
+  EXPECT_EQ(OpenFeatureReader(out / "features.h5")->ImageNames().size(), photos.size());
+  EXPECT_FALSE(fs::exists(out / "features.partial.h5"));
+  EXPECT_EQ(first.submission, out / "submission-nn.txt");
+  const std::vector<NamedPose> poses = ReadPoses(first.submission);
+  EXPECT_EQ(poses.size(), ReadQueryList(lund / "queries_with_intrinsics.txt").size());
+  // Every Lund query within (0.5 m, 5 deg) with nearest-neighbour matching on the XFeat map.
+  ASSERT_FALSE(first.errors.empty());
+  for (const QueryPoseError& error : first.errors) {
+    EXPECT_TRUE(error.estimated) << error.name;
+    EXPECT_LT(error.position, 0.5) << error.name;
+    EXPECT_LT(error.rotation_deg, 5.0) << error.name;
+  }
+  const std::string submission = ReadText(first.submission);
+
+  const auto map_written = fs::last_write_time(out / "map" / "manifest.json");
+  const PipelineSummary second = RunDatasetPipeline(lund, out, options, log);
+  EXPECT_TRUE(second.NothingToDo());
+  EXPECT_EQ(fs::last_write_time(out / "map" / "manifest.json"), map_written);
+  EXPECT_EQ(ReadText(second.submission), submission);
+
+  fs::remove_all(out / "map");
+  const PipelineSummary third = RunDatasetPipeline(lund, out, options, log);
+  EXPECT_EQ(SkippedSteps(third), (std::vector<bool>{true, true, false, false}));
+  EXPECT_EQ(ReadText(third.submission), submission);
+  EXPECT_THAT(log.str(), HasSubstr("[1/4] features: complete, skipped"));
+}
+
+TEST(DatasetPipelineTest, AnUnreadablePartialFeatureFileIsExtractedAgain) {
+  HSCLOC_REQUIRE_REAL_DATA(lund, "lund");
+  testing::TempDir dir;
+  // Three Lund photos, a model of two of them, the third as a query; the run stops after the
+  // features, at a COLMAP that does not exist.
+  const fs::path dataset = dir / "dataset";
+  fs::create_directories(dataset / "images");
+  for (const char* name : {"01.jpg", "02.jpg", "05.jpg"}) {
+    fs::copy_file(lund / "images" / name, dataset / "images" / name);
+  }
+  Reconstruction model = ReadColmapModel(lund / "map");
+  for (auto it = model.images.begin(); it != model.images.end();) {
+    const bool kept = it->second.name == "01.jpg" || it->second.name == "02.jpg";
+    it = kept ? std::next(it) : model.images.erase(it);
+  }
+  model.points3D.clear();
+  for (auto& [id, image] : model.images) image.points2D.clear();
+  WriteColmapModel(model, dataset / "map", ColmapFormat::kText);
+  std::ofstream(dataset / "queries_with_intrinsics.txt")
+      << "05.jpg SIMPLE_RADIAL 1024 768 995 512 384 0\n";
+
+  const fs::path out = dir / "out";
+  fs::create_directories(out);
+  std::ofstream(out / "pipeline.json") << nlohmann::json{
+      {"dataset", fs::weakly_canonical(dataset).string()},
+      {"feature", "xfeat"}}.dump();
+  std::ofstream(out / "features.partial.h5") << "not an HDF5 file";
+  const PipelineOptions options = NearestNeighborOptions((dir / "no-colmap").string());
+  std::ostringstream log;
+  EXPECT_ANY_THROW(RunDatasetPipeline(dataset, out, options, log));
+  EXPECT_THAT(log.str(), HasSubstr("cannot be read"));
+  EXPECT_EQ(OpenFeatureReader(out / "features.h5")->ImageNames().size(), 3u);
+  EXPECT_FALSE(fs::exists(out / "model"));
+}
+
+}  // namespace
+}  // namespace hscloc
