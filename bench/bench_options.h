@@ -3,6 +3,7 @@
 
 #include <filesystem>
 #include <string>
+#include <vector>
 
 namespace hscloc::bench {
 
@@ -14,10 +15,21 @@ struct BenchOptions {
   double train_minutes = 0;     // training budget of --scale-only (0: the full run's)
   std::filesystem::path work = "bench-work";
   std::filesystem::path data = HSCLOC_DEFAULT_DATA_DIR;
+  // The sets that ship with the project (kitti-07), read where `data` lacks them.
+  std::filesystem::path project_data = HSCLOC_PROJECT_DATA_DIR;
+  // The real sets measured (by name, e.g. lund); empty: all of them.
+  std::vector<std::string> real_sets;
   std::filesystem::path report = "docs/performance.md";
   std::filesystem::path json_path;  // default: the report's path with .json
   std::string hscloc = HSCLOC_TOOL_PATH;
   std::string colmap = "colmap";
 };
+
+// The folder of a real set (or of the XFeat weights): under `data`, else under `project_data`.
+inline std::filesystem::path RealDataPath(const BenchOptions& options,
+                                          const std::filesystem::path& relative) {
+  const std::filesystem::path shared = options.data / relative;
+  return std::filesystem::exists(shared) ? shared : options.project_data / relative;
+}
 
 }  // namespace hscloc::bench

@@ -118,7 +118,7 @@ json ComparePeers(const std::string& name, const fs::path& bundle, double train_
 
 json RealSetPeers(const BenchOptions& options, const std::string& set, LocalFeature feature,
                   std::optional<double> train_minutes) {
-  const fs::path set_dir = options.data / set;
+  const fs::path set_dir = RealDataPath(options, set);
   const bool xfeat = feature == LocalFeature::kXFeat;
   const std::string name = xfeat ? set + ", XFeat" : set;
   if (!fs::exists(set_dir / "database.db")) {
@@ -131,7 +131,7 @@ json RealSetPeers(const BenchOptions& options, const std::string& set, LocalFeat
   fs::path model = set_dir / "map";
   fs::path features = set_dir / "database.db";
   if (xfeat) {
-    const fs::path weights = options.data / "weights" / "xfeat" / "xfeat.onnx";
+    const fs::path weights = RealDataPath(options, "weights/xfeat/xfeat.onnx");
     if (!fs::exists(weights)) {
       return {{"set", name}, {"skipped", fmt::format("{} not found", weights.string())}};
     }

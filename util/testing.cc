@@ -35,11 +35,13 @@ const char* EnvironmentOr(const char* name, const char* fallback) {
 }  // namespace
 
 std::optional<std::filesystem::path> RealDataDir(const std::string& subdirectory) {
-  const char* root = EnvironmentOr("HSCLOC_DATA_DIR", HSCLOC_DEFAULT_DATA_DIR);
-  if (*root == '\0') return std::nullopt;
-  const std::filesystem::path path = std::filesystem::path(root) / subdirectory;
-  if (!std::filesystem::is_directory(path)) return std::nullopt;
-  return path;
+  for (const char* root :
+       {EnvironmentOr("HSCLOC_DATA_DIR", HSCLOC_DEFAULT_DATA_DIR), HSCLOC_PROJECT_DATA_DIR}) {
+    if (*root == '\0') continue;
+    const std::filesystem::path path = std::filesystem::path(root) / subdirectory;
+    if (std::filesystem::is_directory(path)) return path;
+  }
+  return std::nullopt;
 }
 
 std::optional<std::filesystem::path> TrainedSmallCityDir() {

@@ -25,8 +25,9 @@ class TempDir {
   std::filesystem::path path_;
 };
 
-// The real data directory (HSCLOC_DATA_DIR, set by ctest from the CMake cache variable), or
-// nullopt where `subdirectory` of it does not exist.
+// `subdirectory` of the real data directory (HSCLOC_DATA_DIR, set by ctest from the CMake cache
+// variable), or else of the project's own data/ (the sets that ship with it); nullopt where
+// neither holds it.
 std::optional<std::filesystem::path> RealDataDir(const std::string& subdirectory);
 
 // The trained `small` synthetic city that the test suite's fixture builds (tests/CMakeLists.txt):
