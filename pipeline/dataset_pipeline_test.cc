@@ -145,6 +145,48 @@ TEST(DatasetPipelineTest, Kitti07StreetEveryQueryWithNearestNeighbours) {
   }
 }
 
+// Lund rearranged as Aachen Day-Night v1.1 is laid out (photos under images/images_upright/db
+// and query/day/milestone, the model under 3D-models/, the day list under queries/): the
+// submission names the queries by their basenames, as visuallocalization.net expects, and places
+// them as the layout of data/ does.
+TEST(DatasetPipelineTest, TheLayoutOfAachenEndToEnd) {
+  HSCLOC_REQUIRE_REAL_DATA(lund, "lund");
+  HSCLOC_REQUIRE_COLMAP(colmap);
+  testing::TempDir dir;
+  const fs::path aachen = dir / "aachen";
+  const fs::path upright = aachen / "images" / "images_upright";
+  Reconstruction model = ReadColmapModel(lund / "map");
+  fs::create_directories(upright / "db");
+  for (auto& [id, image] : model.images) {
+    fs::copy_file(lund / "images" / image.name, upright / "db" / image.name);
+    image.name = "db/" + image.name;
+  }
+  WriteColmapModel(model, aachen / "3D-models" / "aachen_v_1_1", ColmapFormat::kBinary);
+  fs::create_directories(upright / "query" / "day" / "milestone");
+  fs::create_directories(aachen / "queries");
+  std::ofstream list(aachen / "queries" / "day_time_queries_with_intrinsics.txt");
+  for (const QueryWithIntrinsics& query : ReadQueryList(lund / "queries_with_intrinsics.txt")) {
+    fs::copy_file(lund / "images" / query.name,
+                  upright / "query" / "day" / "milestone" / query.name);
+    list << FormatIntrinsicsLine("query/day/milestone/" + query.name, query.camera);
+  }
+  list.close();
+
+  std::ostringstream log;
+  const PipelineSummary summary =
+      RunDatasetPipeline(aachen, dir / "out", NearestNeighborOptions(colmap), log);
+  EXPECT_THAT(log.str(), HasSubstr("(aachen layout)"));
+  EXPECT_TRUE(summary.errors.empty());  // Aachen's ground truth stays with its server
+  const std::vector<QueryPoseError> errors =
+      ComputePoseErrors(ReadPoses(lund / "queries_gt.txt"), ReadPoses(summary.submission));
+  ASSERT_EQ(errors.size(), 5u);
+  for (const QueryPoseError& error : errors) {
+    EXPECT_TRUE(error.estimated) << error.name;
+    EXPECT_LT(error.position, 0.5) << error.name;
+    EXPECT_LT(error.rotation_deg, 5.0) << error.name;
+  }
+}
+
 TEST(DatasetPipelineTest, AnUnreadablePartialFeatureFileIsExtractedAgain) {
   HSCLOC_REQUIRE_REAL_DATA(lund, "lund");
   testing::TempDir dir;
