@@ -3,9 +3,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include <fstream>
-
-#include "scene/colmap_io.h"
+#include "pipeline/dataset_test_support.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -13,38 +11,10 @@ namespace {
 
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
-
-void Touch(const fs::path& path, const std::string& text = "") {
-  fs::create_directories(path.parent_path());
-  std::ofstream(path) << text;
-}
-
-// A COLMAP text model of one camera and the images named, without points.
-void WriteModel(const fs::path& dir, const std::vector<std::string>& names) {
-  Reconstruction model;
-  model.cameras[1] = Camera::FromModelName(1, "PINHOLE", 640, 480, {500, 500, 320, 240});
-  image_t id = 1;
-  for (const std::string& name : names) {
-    Image image;
-    image.image_id = id;
-    image.name = name;
-    image.camera_id = 1;
-    model.images[id++] = image;
-  }
-  WriteColmapModel(model, dir, ColmapFormat::kText);
-}
-
-std::string QueryLine(const std::string& name) {
-  return name + " PINHOLE 640 480 500 500 320 240\n";
-}
-
-// The layout of data/: two map photos and a query with its ground truth.
-void MakeHsclocDataset(const fs::path& dir) {
-  for (const char* name : {"a.jpg", "b.jpg", "q.jpg"}) Touch(dir / "images" / name);
-  WriteModel(dir / "map", {"a.jpg", "b.jpg"});
-  Touch(dir / "queries_with_intrinsics.txt", QueryLine("q.jpg"));
-  Touch(dir / "queries_gt.txt", "q.jpg 1 0 0 0 0 0 0\n");
-}
+using testing::MakeHsclocDataset;
+using testing::QueryLine;
+using testing::Touch;
+using testing::WriteModel;
 
 // The layout of Aachen Day-Night v1.1, in miniature.
 void MakeAachenDataset(const fs::path& dir) {

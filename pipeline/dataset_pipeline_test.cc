@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "features/image_extraction.h"
+#include "pipeline/dataset_test_support.h"
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
@@ -41,14 +42,27 @@ std::string ReadText(const fs::path& path) {
   return text.str();
 }
 
+// A folder in neither layout, a query list naming a missing photo, a model whose images are not
+// the photos: each refused before the output folder is made.
 TEST(DatasetPipelineTest, BadInputWritesNothing) {
   testing::TempDir dir;
-  fs::create_directories(dir / "not-a-dataset" / "images");
   std::ostringstream log;
   const PipelineOptions options = NearestNeighborOptions("colmap");
-  EXPECT_THAT(testing::InvalidArgumentMessage(
-                  [&] { RunDatasetPipeline(dir / "not-a-dataset", dir / "out", options, log); }),
-              HasSubstr("is not a dataset"));
+  const auto refusal = [&](const fs::path& dataset) {
+    return testing::InvalidArgumentMessage(
+        [&] { RunDatasetPipeline(dataset, dir / "out", options, log); });
+  };
+  fs::create_directories(dir / "not-a-dataset" / "images");
+  EXPECT_THAT(refusal(dir / "not-a-dataset"), HasSubstr("is not a dataset"));
+
+  testing::MakeHsclocDataset(dir / "lost-query");
+  testing::Touch(dir / "lost-query" / "queries_with_intrinsics.txt",
+                 testing::QueryLine("q.jpg") + testing::QueryLine("lost.jpg"));
+  EXPECT_THAT(refusal(dir / "lost-query"), HasSubstr("lost.jpg"));
+
+  testing::MakeHsclocDataset(dir / "other-model");
+  testing::WriteModel(dir / "other-model" / "map", {"a.jpg", "elsewhere.jpg"});
+  EXPECT_THAT(refusal(dir / "other-model"), HasSubstr("does not match the photos"));
   EXPECT_FALSE(fs::exists(dir / "out"));
 }
 
