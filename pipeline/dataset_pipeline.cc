@@ -80,16 +80,25 @@ void CheckOrWriteRecord(const fs::path& dataset, const fs::path& out,
   std::ofstream(path) << record.dump(2) << '\n';
 }
 
+// Thrown inside a step that stopped at PipelineOptions::stop_requested.
+struct StepInterrupted {};
+
+void StopIfRequested(const PipelineOptions& options) {
+  if (options.stop_requested != nullptr && options.stop_requested->load()) throw StepInterrupted{};
+}
+
 // Runs the steps in order, skipping those whose output is complete, and removes the outputs of
 // the steps after one that ran (they were made from what it replaced).
 class StepSequence {
  public:
-  StepSequence(int num_steps, std::ostream& log, PipelineSummary& summary)
-      : num_steps_(num_steps), log_(log), summary_(summary) {}
+  StepSequence(int num_steps, const PipelineOptions& options, std::ostream& log,
+               PipelineSummary& summary)
+      : num_steps_(num_steps), options_(options), log_(log), summary_(summary) {}
 
   // `outputs`: what the step writes (removed when an earlier step ran); `run` returns its detail.
   void Step(const std::string& name, const std::vector<fs::path>& outputs,
             const std::function<bool()>& complete, const std::function<std::string()>& run) {
+    if (interrupted_) return;
     ++index_;
     PipelineStepReport report;
     report.name = name;
@@ -103,7 +112,13 @@ class StepSequence {
     } else {
       log_ << fmt::format("[{}/{}] {} ...\n", index_, num_steps_, name) << std::flush;
       const Timer timer;
-      report.detail = run();
+      try {
+        StopIfRequested(options_);
+        report.detail = run();
+      } catch (const StepInterrupted&) {
+        report.interrupted = interrupted_ = true;
+        report.detail = "interrupted: rerun the same command to resume";
+      }
       report.seconds = timer.ElapsedSeconds();
       redo_ = true;
       log_ << fmt::format("[{}/{}] {}: {} ({})\n", index_, num_steps_, name, report.detail,
@@ -115,8 +130,10 @@ class StepSequence {
 
  private:
   int num_steps_;
+  const PipelineOptions& options_;
   int index_ = 0;
   bool redo_ = false;
+  bool interrupted_ = false;
   std::ostream& log_;
   PipelineSummary& summary_;
 };
@@ -145,6 +162,7 @@ std::string ExtractFeatures(const DatasetLayout& layout, const std::vector<std::
   int64_t extracted = 0;
   int64_t keypoints = 0;
   for (size_t begin = 0; begin < photos.size(); begin += kPhotosPerChunk) {
+    StopIfRequested(options);
     const std::vector<std::string> chunk(
         photos.begin() + begin, photos.begin() + std::min(photos.size(), begin + kPhotosPerChunk));
     const ImageExtractionSummary summary =
@@ -210,7 +228,10 @@ std::string Train(const fs::path& map_dir, const fs::path& checkpoint,
   training.resume = true;
   training.show_progress = options.show_progress;
   SetComputeThreads(options.num_threads);
+  training.stop_requested = options.stop_requested;
   const TrainingResult result = TrainNetwork(map->scene(), map->label_tree(), training);
+  // The trainer checkpointed where it stopped; the network is published only when trained.
+  if (result.interrupted) throw StepInterrupted{};
   WriteNetworkToBundle(map_dir, result, training);
   fs::remove(checkpoint);
   return fmt::format("{} iterations, held-out point accuracy {:.1f} %", result.iterations,
@@ -296,6 +317,13 @@ bool PipelineSummary::NothingToDo() const {
   return true;
 }
 
+bool PipelineSummary::Interrupted() const {
+  for (const PipelineStepReport& step : steps) {
+    if (step.interrupted) return true;
+  }
+  return false;
+}
+
 std::string SubmissionFileName(Matcher matcher) {
   return matcher == Matcher::kNetwork ? "submission.txt" : "submission-nn.txt";
 }
@@ -317,7 +345,7 @@ PipelineSummary RunDatasetPipeline(const fs::path& dataset, const fs::path& out,
   PipelineSummary summary;
   summary.submission = out / SubmissionFileName(options.matcher);
   const bool trains = options.matcher == Matcher::kNetwork;
-  StepSequence steps(trains ? 5 : 4, log, summary);
+  StepSequence steps(trains ? 5 : 4, options, log, summary);
   steps.Step(
       "features", {features, Partial(features)}, [&] { return fs::exists(features); },
       [&] { return ExtractFeatures(layout, photos, features, options, log); });
@@ -341,7 +369,7 @@ PipelineSummary RunDatasetPipeline(const fs::path& dataset, const fs::path& out,
   steps.Step(
       "submission", submission_outputs, [&] { return fs::exists(summary.submission); },
       [&] { return Localize(layout, map, features, summary.submission, options); });
-  Evaluate(layout, summary);
+  if (!summary.Interrupted()) Evaluate(layout, summary);
   return summary;
 }
 

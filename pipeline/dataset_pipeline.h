@@ -12,6 +12,7 @@
 // that runs invalidates the outputs of the steps after it.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <filesystem>
 #include <iosfwd>
@@ -36,13 +37,18 @@ struct PipelineOptions {
   int num_threads = 0;  // <= 0: all cores
   std::string colmap_executable = "colmap";
   bool show_progress = true;  // progress bars of the long steps, on stderr
+  // When set (by a signal handler), the run stops at the next safe point: between chunks of
+  // photos, or after the current training step with the training checkpointed. Nothing is
+  // published for the step it stopped; a rerun resumes it.
+  const std::atomic<bool>* stop_requested = nullptr;
 
   void Check() const;
 };
 
 struct PipelineStepReport {
   std::string name;
-  bool skipped = false;  // its output was complete
+  bool skipped = false;      // its output was complete
+  bool interrupted = false;  // stopped by PipelineOptions::stop_requested, nothing published
   double seconds = 0;
   std::string detail;  // what it made, one line
 };
@@ -55,15 +61,17 @@ struct PipelineSummary {
   std::vector<QueryPoseError> errors;
 
   bool NothingToDo() const;
+  // Whether a step was interrupted (the steps after it did not run).
+  bool Interrupted() const;
 };
 
 // The submission's file name for a matcher.
 std::string SubmissionFileName(Matcher matcher);
 
 // Runs the steps for `dataset` into `out` (created), writing a line per step as it starts and as
-// it ends to `log`. Throws std::invalid_argument, before anything is written, for a dataset in
-// neither layout, photos the model or the query lists name but the folder lacks, or an `out`
-// made by another dataset or feature.
+// it ends to `log`; an interrupted run returns with the step marked. Throws std::invalid_argument,
+// before anything is written, for a dataset in neither layout, photos the model or the query lists
+// name but the folder lacks, or an `out` made by another dataset or feature.
 PipelineSummary RunDatasetPipeline(const std::filesystem::path& dataset,
                                    const std::filesystem::path& out, const PipelineOptions& options,
                                    std::ostream& log);

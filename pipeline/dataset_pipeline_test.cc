@@ -4,11 +4,13 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
 #include "features/image_extraction.h"
+#include "map/map_bundle.h"
 #include "pipeline/dataset_test_support.h"
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
@@ -88,9 +90,10 @@ TEST(DatasetPipelineTest, RefusesAnOutputFolderOfAnotherToolOrFeature) {
   EXPECT_FALSE(fs::exists(dir / "sift" / "features.partial.h5"));
 }
 
-// Lund with XFeat and the nearest-neighbour matcher (no training): a run that stopped during the
-// extraction resumes after the photos it had written, a finished run does nothing, and a removed
-// map is rebuilt with the submission while the features and the model are kept.
+// Lund with XFeat and the nearest-neighbour matcher: a run that stopped during the extraction
+// resumes after the photos it had written, a finished run does nothing, and a removed map is
+// rebuilt with the submission while the features and the model are kept; then the network, after
+// a stop.
 TEST(DatasetPipelineTest, LundResumesAnInterruptedRunAndSkipsAFinishedOne) {
   HSCLOC_REQUIRE_REAL_DATA(lund, "lund");
   HSCLOC_REQUIRE_COLMAP(colmap);
@@ -98,7 +101,7 @@ TEST(DatasetPipelineTest, LundResumesAnInterruptedRunAndSkipsAFinishedOne) {
   const fs::path out = dir / "out";
   const PipelineOptions options = NearestNeighborOptions(colmap);
   std::ostringstream log;
-  // What a run killed after its first chunk of photos leaves.
+  // What a run stopped after its first chunk of photos leaves.
   fs::create_directories(out);
   std::ofstream(out / "pipeline.json") << nlohmann::json{
       {"dataset", fs::weakly_canonical(lund).string()},
@@ -139,6 +142,27 @@ TEST(DatasetPipelineTest, LundResumesAnInterruptedRunAndSkipsAFinishedOne) {
   EXPECT_EQ(SkippedSteps(third), (std::vector<bool>{true, true, false, false}));
   EXPECT_EQ(ReadText(third.submission), submission);
   EXPECT_THAT(log.str(), HasSubstr("[1/4] features: complete, skipped"));
+
+  // The network on the same map, stopped (as by Ctrl-C) as its step begins: nothing is published
+  // and the nearest-neighbour submission, whose map is unchanged, stays; the next run trains.
+  std::atomic<bool> stop{true};
+  PipelineOptions network_options = options;
+  network_options.matcher = Matcher::kNetwork;
+  network_options.max_iterations = 4;
+  network_options.stop_requested = &stop;
+  const PipelineSummary stopped = RunDatasetPipeline(lund, out, network_options, log);
+  EXPECT_TRUE(stopped.Interrupted());
+  ASSERT_EQ(stopped.steps.size(), 4u);  // the submission step did not start
+  EXPECT_TRUE(stopped.steps[3].interrupted);
+  EXPECT_FALSE(MapBundle::Open(out / "map", std::vector<std::string>{}).HasBlob("network.pt"));
+  EXPECT_FALSE(fs::exists(out / "submission.txt"));
+  EXPECT_TRUE(fs::exists(out / "submission-nn.txt"));
+  stop = false;
+  const PipelineSummary resumed = RunDatasetPipeline(lund, out, network_options, log);
+  EXPECT_EQ(SkippedSteps(resumed), (std::vector<bool>{true, true, true, false, false}));
+  EXPECT_THAT(resumed.steps[3].detail, HasSubstr("4 iterations"));
+  EXPECT_FALSE(fs::exists(out / "map.checkpoint.pt"));
+  EXPECT_EQ(ReadPoses(out / "submission.txt").size(), poses.size());
 }
 
 // The KITTI street (140 map frames, 20 queries along 115 m) from its photos with XFeat: the

@@ -5,6 +5,7 @@
 
 #include "pipeline/dataset_pipeline.h"
 #include "tools/commands.h"
+#include "tools/stop_signal.h"
 #include "util/timer.h"
 
 namespace hscloc {
@@ -32,9 +33,17 @@ int RunPipeline(PipelineArguments& arguments) {
   PipelineOptions& options = arguments.options;
   options.feature = ParseFeatureType(arguments.feature);
   options.matcher = ParseMatcher(arguments.matcher);
+  // Ctrl-C stops at the next safe point (between chunks of photos, after a training step), so
+  // that a rerun resumes there.
+  options.stop_requested = StopOnFirstSignal();
   const Timer timer;
   const PipelineSummary summary =
       RunDatasetPipeline(arguments.dataset, arguments.out, options, std::cout);
+  if (summary.Interrupted()) {
+    std::cout << fmt::format("interrupted after {}: rerun the same command to resume\n",
+                             FormatDuration(timer.ElapsedSeconds()));
+    return 130;
+  }
   if (summary.NothingToDo()) {
     std::cout << fmt::format("nothing to do: every step's output is complete in {}\n",
                              arguments.out);

@@ -1,5 +1,4 @@
 #include <fmt/format.h>
-#include <signal.h>
 
 #include <atomic>
 #include <iostream>
@@ -12,6 +11,7 @@
 #include "model/network.h"
 #include "model/trainer.h"
 #include "tools/commands.h"
+#include "tools/stop_signal.h"
 #include "util/check.h"
 #include "util/timer.h"
 
@@ -110,20 +110,6 @@ void ChooseOutputLayers(const std::string& output, const NetworkOptions& default
   network.node_conditioning = DefaultNodeConditioning(network);
 }
 
-// Set by SIGINT or SIGTERM: training stops after its current step and keeps what it learned.
-std::atomic<bool> stop_training{false};
-static_assert(std::atomic<bool>::is_always_lock_free, "set from a signal handler");
-
-// The first Ctrl-C ends training cleanly; the handler then resets, so a second one kills.
-void StopTrainingOnSignals() {
-  struct sigaction action {};
-  action.sa_handler = [](int) { stop_training.store(true); };
-  action.sa_flags = SA_RESETHAND;
-  sigemptyset(&action.sa_mask);
-  sigaction(SIGINT, &action, nullptr);
-  sigaction(SIGTERM, &action, nullptr);
-}
-
 int RunTrain(TrainArguments& arguments) {
   TrainerOptions& options = arguments.options;
   options.device = ParseComputeDevice(arguments.device);
@@ -184,8 +170,8 @@ int RunTrain(TrainArguments& arguments) {
   }
 
   options.Check();
-  options.stop_requested = &stop_training;
-  StopTrainingOnSignals();
+  // Ctrl-C stops training after its current step and keeps what it learned.
+  options.stop_requested = StopOnFirstSignal();
   const TrainingResult result = TrainNetwork(map->scene(), map->label_tree(), options);
   if (result.interrupted) {
     std::cout << fmt::format(
