@@ -337,7 +337,12 @@ int Run(const BenchOptions& options) {
     fs::create_directories(options.work);
     SetupLogging("warn");
     previous["real_sets"] = MergeRows(previous["real_sets"], MeasureRealSets(options));
-    previous["real_sets_measured"] = Today();
+    // Rows not measured now keep their date.
+    previous["real_sets_measured"] =
+        options.real_sets.empty() || !previous.contains("real_sets_measured")
+            ? Today()
+            : fmt::format("{}, {} on {}", previous["real_sets_measured"].get<std::string>(),
+                          fmt::join(options.real_sets, " and "), Today());
     WriteResults(previous, json_path, options);
     Step(fmt::format("measured the real sets into {} and {}", json_path.string(),
                      options.report.string()));

@@ -113,6 +113,17 @@ json ComparePeers(const std::string& name, const fs::path& bundle, double train_
         AccuracyJson(Evaluate(localizer, localizer_options, queries, ground_truth, name));
   }
   peers["colmap"] = colmap;
+  // `hscloc train --eval`'s held-out point accuracy (visibility-masked decoding) beside the
+  // nearest-class-mean matcher's on the same observations, when the training wrote them.
+  const nlohmann::json evaluations = map->metadata()
+                                         .value(map_metadata::kNetwork, json::object())
+                                         .value("evaluations", json::object());
+  if (evaluations.contains("held_out_masked") &&
+      evaluations.contains("held_out_nearest_class_mean")) {
+    peers["held_out"] = {
+        {"network", evaluations["held_out_masked"]["leaf_accuracy"]},
+        {"nearest_class_mean", evaluations["held_out_nearest_class_mean"]["leaf_accuracy"]}};
+  }
   return peers;
 }
 
@@ -155,7 +166,8 @@ json RealSetPeers(const BenchOptions& options, const std::string& set, LocalFeat
            work / "build_map.log");
   std::vector<std::string> train_command = {options.hscloc, "train",
                                             "--map",        bundle.string(),
-                                            "--checkpoint", (work / "checkpoint.pt").string()};
+                                            "--checkpoint", (work / "checkpoint.pt").string(),
+                                            "--eval"};
   if (train_minutes) {
     train_command.insert(train_command.end(), {"--minutes", fmt::format("{}", *train_minutes)});
   }
