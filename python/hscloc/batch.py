@@ -9,7 +9,7 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Optional, Sequence, Union
+from typing import TYPE_CHECKING, Callable, Optional, Protocol, Sequence, Union
 
 import numpy as np
 
@@ -20,9 +20,17 @@ from .results import LocalizationResult, Pose
 if TYPE_CHECKING:
     import h5py
 
-    from .client import Client
-
 PathLike = Union[str, os.PathLike]
+
+
+class LocalizingClient(Protocol):
+    """What a batch needs of a connection (hscloc.Client is one): the batch depends on this, not
+    on the client module, which offers the batch as Client.localize_batch."""
+
+    def localize(self, keypoints: np.ndarray, descriptors: np.ndarray, camera: CameraLike, *,
+                 query_name: str = "") -> LocalizationResult: ...
+
+    def close(self) -> None: ...
 
 # hloc puts the centre of the top-left pixel at (0, 0), COLMAP and the wire at (0.5, 0.5).
 HLOC_TO_COLMAP_SHIFT_PX = np.float32(0.5)
@@ -182,7 +190,7 @@ class _SubmissionWriter:
 
 
 def localize_batch(
-    make_client: Callable[[], "Client"],
+    make_client: Callable[[], LocalizingClient],
     queries: QueryInput,
     features_h5: PathLike,
     out: PathLike,
@@ -205,7 +213,7 @@ def localize_batch(
         if missing:
             raise ValueError(f"{features_h5}: no features for query '{missing[0]}'"
                              f"{f' (and {len(missing) - 1} more)' if len(missing) > 1 else ''}")
-        clients: list[Client] = []
+        clients: list[LocalizingClient] = []
         local = threading.local()
         lock = threading.Lock()
 

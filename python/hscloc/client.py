@@ -8,19 +8,17 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional, Union
+from typing import Optional, Union
 
 import numpy as np
 import zmq
 
+from .batch import BatchSummary, QueryInput, localize_batch
 from .camera import CameraLike
 from .errors import ProtocolError, ServerError, ServerTimeoutError
 from .requests import LocalizeOptions, make_localize_request
 from .results import Health, LocalizationResult, ServerInfo
 from .wire import PROTOCOL_VERSION, RESULT_STATUSES, pb, status_name
-
-if TYPE_CHECKING:
-    from .batch import BatchSummary, QueryInput
 
 # A Z85 CURVE key (40 characters), or the path of a file whose first line holds one
 # (`hscloc keygen --out NAME` writes NAME.pub and NAME.key).
@@ -257,13 +255,13 @@ class Client:
 
     def localize_batch(
         self,
-        queries: "QueryInput",
+        queries: QueryInput,
         features_h5: Union[str, os.PathLike],
         out: Union[str, os.PathLike],
         inflight: int = 16,
         *,
         descriptor_dtype: Optional[np.dtype] = None,
-    ) -> "BatchSummary":
+    ) -> BatchSummary:
         """Localizes a query list and writes the submission `hscloc localize` writes.
 
         Args:
@@ -282,8 +280,6 @@ class Client:
             ValueError: a malformed list, a query without features, a bad argument.
             ServerTimeoutError: the server does not answer; the batch stops.
         """
-        from .batch import localize_batch
-
         return localize_batch(lambda: Client.from_options(self.options), queries, features_h5,
                               out, inflight, descriptor_dtype=descriptor_dtype)
 
