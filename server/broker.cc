@@ -20,8 +20,6 @@
 namespace hscloc {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
 struct Pending {
   uint64_t sequence = 0;
   std::vector<std::string> frames;  // the client's envelope and payload
@@ -30,7 +28,7 @@ struct Pending {
 struct Worker {
   int slots = 0;
   int busy = 0;
-  Clock::time_point expiry;
+  std::chrono::steady_clock::time_point expiry;
 };
 
 constexpr char kClientDomain[] = "clients";
@@ -49,6 +47,11 @@ struct Broker::State {
   zmq::socket_t front;
   zmq::socket_t back;
   zmq::socket_t admin;
+  // Routing, touched by the loop's thread only.
+  std::deque<Pending> queue;
+  std::map<std::string, Worker> workers;
+  std::map<uint64_t, std::pair<Pending, std::string>> in_flight;  // sequence -> (request, worker)
+  uint64_t next_sequence = 0;
 };
 
 void BrokerOptions::Check() const {
@@ -170,127 +173,126 @@ void Broker::AnswerAdmin(size_t workers) {
 }
 
 void Broker::Loop() {
-  std::deque<Pending> queue;
-  std::map<std::string, Worker> workers;
-  std::map<uint64_t, std::pair<Pending, std::string>> in_flight;  // sequence -> (request, worker)
-  uint64_t next_sequence = 0;
-  const auto liveness = options_.heartbeat_interval * options_.heartbeat_liveness;
   Clock::time_point next_heartbeat = Clock::now() + options_.heartbeat_interval;
-
-  const auto overloaded = [&](std::vector<std::string> frames) {
-    frames.back() = ErrorResponse(wire::OVERLOADED, fmt::format("{} requests wait for a worker; "
-                                                                "retry later",
-                                                                options_.max_queue))
-                        .SerializeAsString();
-    metrics_->CountOverloaded();
-    SendFrames(state_->front, frames);
-  };
-
   while (!stopping_) {
     std::vector<zmq::pollitem_t> items = {{state_->back.handle(), 0, ZMQ_POLLIN, 0},
                                           {state_->front.handle(), 0, ZMQ_POLLIN, 0}};
     if (!admin_endpoint_.empty()) items.push_back({state_->admin.handle(), 0, ZMQ_POLLIN, 0});
     zmq::poll(items, options_.heartbeat_interval);
     const Clock::time_point now = Clock::now();
-    if (items.size() > 2 && (items[2].revents & ZMQ_POLLIN)) AnswerAdmin(workers.size());
-
-    if (items[0].revents & ZMQ_POLLIN) {
-      std::vector<std::string> frames = ReceiveFrames(state_->back);
-      if (frames.size() >= 2) {
-        const std::string& id = frames[0];
-        if (frames.size() == 2 && frames[1].rfind(kWorkerReady, 0) == 0) {
-          // A worker's announcement, repeated as its heartbeat.
-          auto [worker, is_new] = workers.try_emplace(id);
-          worker->second.slots =
-              std::max(1, std::atoi(frames[1].c_str() + std::strlen(kWorkerReady)));
-          worker->second.expiry = now + liveness;
-          if (is_new) {
-            spdlog::info("broker: worker joined with {} slots", worker->second.slots);
-            metrics_->CountWorkerJoined();
-          }
-        } else if (frames.size() >= 4) {
-          // A reply: worker id, sequence, the client's envelope, payload.
-          auto worker = workers.find(id);
-          if (worker != workers.end()) {
-            worker->second.expiry = now + liveness;
-            worker->second.busy = std::max(0, worker->second.busy - 1);
-          }
-          const uint64_t sequence = std::strtoull(frames[1].c_str(), nullptr, 10);
-          if (in_flight.erase(sequence) > 0) {
-            metrics_->CountAnswered();
-            SendFrames(state_->front, std::vector<std::string>(frames.begin() + 2, frames.end()));
-          }
-          // Else a late duplicate of a request already answered by another worker: dropped.
-        }
-      }
-    }
-
-    if (items[1].revents & ZMQ_POLLIN) {
-      std::vector<std::string> frames = ReceiveFrames(state_->front);
-      if (frames.size() >= 2) {
-        if (queue.size() >= options_.max_queue) {
-          overloaded(std::move(frames));
-        } else {
-          queue.push_back({++next_sequence, std::move(frames)});
-        }
-      }
-    }
-
-    // Workers whose heartbeats stopped: their requests go back to the front of the queue.
-    for (auto worker = workers.begin(); worker != workers.end();) {
-      if (worker->second.expiry >= now) {
-        ++worker;
-        continue;
-      }
-      std::vector<Pending> orphans;
-      for (auto flight = in_flight.begin(); flight != in_flight.end();) {
-        if (flight->second.second == worker->first) {
-          orphans.push_back(std::move(flight->second.first));
-          flight = in_flight.erase(flight);
-        } else {
-          ++flight;
-        }
-      }
-      for (auto orphan = orphans.rbegin(); orphan != orphans.rend(); ++orphan) {
-        queue.push_front(std::move(*orphan));
-      }
-      retried_ += orphans.size();
-      ++dropped_;
-      metrics_->CountWorkerDropped(orphans.size());
-      spdlog::warn("broker: a worker missed its heartbeats; {} of its requests go to others",
-                   orphans.size());
-      worker = workers.erase(worker);
-    }
-
-    // Hand waiting requests to the least busy workers with a free slot.
-    while (!queue.empty()) {
-      auto best = workers.end();
-      for (auto worker = workers.begin(); worker != workers.end(); ++worker) {
-        if (worker->second.busy < worker->second.slots &&
-            (best == workers.end() || worker->second.busy < best->second.busy)) {
-          best = worker;
-        }
-      }
-      if (best == workers.end()) break;
-      Pending pending = std::move(queue.front());
-      queue.pop_front();
-      std::vector<std::string> frames = {best->first, std::to_string(pending.sequence)};
-      frames.insert(frames.end(), pending.frames.begin(), pending.frames.end());
-      SendFrames(state_->back, frames);
-      ++best->second.busy;
-      in_flight.emplace(pending.sequence, std::make_pair(std::move(pending), best->first));
-    }
-
-    size_t slots = 0;
-    for (const auto& [id, worker] : workers) slots += static_cast<size_t>(worker.slots);
-    metrics_->SetWorkers(workers.size(), slots);
-    metrics_->SetQueue(queue.size(), in_flight.size());
-
+    if (items.size() > 2 && (items[2].revents & ZMQ_POLLIN)) AnswerAdmin(state_->workers.size());
+    if (items[0].revents & ZMQ_POLLIN) ReceiveFromWorker(now);
+    if (items[1].revents & ZMQ_POLLIN) ReceiveFromClient();
+    RequeueSilentWorkers(now);
+    DispatchWaiting();
+    PublishGauges();
     if (now >= next_heartbeat) {
-      for (const auto& [id, worker] : workers) SendFrames(state_->back, {id, kHeartbeat});
+      for (const auto& [id, worker] : state_->workers) SendFrames(state_->back, {id, kHeartbeat});
       next_heartbeat = now + options_.heartbeat_interval;
     }
   }
+}
+
+void Broker::ReceiveFromWorker(Clock::time_point now) {
+  const std::vector<std::string> frames = ReceiveFrames(state_->back);
+  if (frames.size() < 2) return;
+  const std::string& id = frames[0];
+  const auto liveness = options_.heartbeat_interval * options_.heartbeat_liveness;
+  if (frames.size() == 2 && frames[1].rfind(kWorkerReady, 0) == 0) {
+    // A worker's announcement, repeated as its heartbeat.
+    auto [worker, is_new] = state_->workers.try_emplace(id);
+    worker->second.slots = std::max(1, std::atoi(frames[1].c_str() + std::strlen(kWorkerReady)));
+    worker->second.expiry = now + liveness;
+    if (is_new) {
+      spdlog::info("broker: worker joined with {} slots", worker->second.slots);
+      metrics_->CountWorkerJoined();
+    }
+  } else if (frames.size() >= 4) {
+    // A reply: worker id, sequence, the client's envelope, payload.
+    auto worker = state_->workers.find(id);
+    if (worker != state_->workers.end()) {
+      worker->second.expiry = now + liveness;
+      worker->second.busy = std::max(0, worker->second.busy - 1);
+    }
+    const uint64_t sequence = std::strtoull(frames[1].c_str(), nullptr, 10);
+    if (state_->in_flight.erase(sequence) > 0) {
+      metrics_->CountAnswered();
+      SendFrames(state_->front, std::vector<std::string>(frames.begin() + 2, frames.end()));
+    }
+    // Else a late duplicate of a request already answered by another worker: dropped.
+  }
+}
+
+void Broker::ReceiveFromClient() {
+  std::vector<std::string> frames = ReceiveFrames(state_->front);
+  if (frames.size() < 2) return;
+  if (state_->queue.size() < options_.max_queue) {
+    state_->queue.push_back({++state_->next_sequence, std::move(frames)});
+    return;
+  }
+  frames.back() =
+      ErrorResponse(wire::OVERLOADED,
+                    fmt::format("{} requests wait for a worker; retry later", options_.max_queue))
+          .SerializeAsString();
+  metrics_->CountOverloaded();
+  SendFrames(state_->front, frames);
+}
+
+// Workers whose heartbeats stopped: their requests go back to the front of the queue.
+void Broker::RequeueSilentWorkers(Clock::time_point now) {
+  for (auto worker = state_->workers.begin(); worker != state_->workers.end();) {
+    if (worker->second.expiry >= now) {
+      ++worker;
+      continue;
+    }
+    std::vector<Pending> orphans;
+    for (auto flight = state_->in_flight.begin(); flight != state_->in_flight.end();) {
+      if (flight->second.second == worker->first) {
+        orphans.push_back(std::move(flight->second.first));
+        flight = state_->in_flight.erase(flight);
+      } else {
+        ++flight;
+      }
+    }
+    for (auto orphan = orphans.rbegin(); orphan != orphans.rend(); ++orphan) {
+      state_->queue.push_front(std::move(*orphan));
+    }
+    retried_ += orphans.size();
+    ++dropped_;
+    metrics_->CountWorkerDropped(orphans.size());
+    spdlog::warn("broker: a worker missed its heartbeats; {} of its requests go to others",
+                 orphans.size());
+    worker = state_->workers.erase(worker);
+  }
+}
+
+// Hands waiting requests to the least busy workers with a free slot.
+void Broker::DispatchWaiting() {
+  std::map<std::string, Worker>& workers = state_->workers;
+  while (!state_->queue.empty()) {
+    auto best = workers.end();
+    for (auto worker = workers.begin(); worker != workers.end(); ++worker) {
+      if (worker->second.busy < worker->second.slots &&
+          (best == workers.end() || worker->second.busy < best->second.busy)) {
+        best = worker;
+      }
+    }
+    if (best == workers.end()) return;
+    Pending pending = std::move(state_->queue.front());
+    state_->queue.pop_front();
+    std::vector<std::string> frames = {best->first, std::to_string(pending.sequence)};
+    frames.insert(frames.end(), pending.frames.begin(), pending.frames.end());
+    SendFrames(state_->back, frames);
+    ++best->second.busy;
+    state_->in_flight.emplace(pending.sequence, std::make_pair(std::move(pending), best->first));
+  }
+}
+
+void Broker::PublishGauges() {
+  size_t slots = 0;
+  for (const auto& [id, worker] : state_->workers) slots += static_cast<size_t>(worker.slots);
+  metrics_->SetWorkers(state_->workers.size(), slots);
+  metrics_->SetQueue(state_->queue.size(), state_->in_flight.size());
 }
 
 }  // namespace hscloc

@@ -70,8 +70,17 @@ class Broker {
  private:
   struct State;
 
+  using Clock = std::chrono::steady_clock;
+
   void OpenSockets();
+  // Polls the sockets until Stop(): each round receives, requeues the requests of silent
+  // workers, dispatches, publishes the gauges and sends heartbeats.
   void Loop();
+  void ReceiveFromWorker(Clock::time_point now);  // a heartbeat or a reply
+  void ReceiveFromClient();                       // queued, or refused when the queue is full
+  void RequeueSilentWorkers(Clock::time_point now);
+  void DispatchWaiting();
+  void PublishGauges();
   void AnswerAdmin(size_t workers);
 
   BrokerOptions options_;
