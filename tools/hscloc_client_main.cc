@@ -80,18 +80,11 @@ int RunBatchCommand(CommonArguments& common, const std::vector<std::string>& lis
   return summary.num_failed == summary.num_queries && summary.num_queries > 0 ? 1 : 0;
 }
 
-}  // namespace
-}  // namespace hscloc
+using CommandRunner = std::function<int()>;
 
-int main(int argc, char** argv) {
-  using namespace hscloc;
-  CLI::App app{"hscloc-client: localize photos or features against an hscloc server"};
-  app.require_subcommand(1);
-  // The global options work on either side of the subcommand (`batch --server X`): what a
-  // subcommand does not know falls through to them. Subcommands inherit this when added.
-  app.fallthrough();
-  app.set_version_flag("--version", "hscloc-client 0.1.0");
-  CommonArguments common;
+// The options every subcommand shares: the server, its timeouts and retries, CURVE keys and the
+// descriptors' precision.
+void AddCommonOptions(CLI::App& app, CommonArguments& common) {
   app.add_option("--server", common.client.server, "Server endpoint")->capture_default_str();
   app.add_option("--timeout-ms", common.client.timeout_ms, "Reply timeout per attempt")
       ->capture_default_str();
@@ -102,13 +95,14 @@ int main(int argc, char** argv) {
   app.add_option("--curve-secret-key", common.curve_secret_key_file,
                  "File with this client's CURVE secret key, for servers that allow listed keys "
                  "only (default: a fresh key pair)");
-  bool float32 = false;
-  app.add_flag("--float32", float32,
+  auto float32 = std::make_shared<bool>(false);
+  app.add_flag("--float32", *float32,
                "Send descriptors as float32 (default float16: half the bytes, results may differ "
                "in the last bits)");
-  app.parse_complete_callback([&] { common.float16 = !float32; });
-  std::function<int()> run;
+  app.parse_complete_callback([&common, float32] { common.float16 = !*float32; });
+}
 
+void AddQueryCommand(CLI::App& app, CommonArguments& common, CommandRunner& run) {
   CLI::App* query = app.add_subcommand("query", "Localize one photo or one image's features");
   auto image = std::make_shared<std::string>();
   auto features = std::make_shared<std::string>();
@@ -132,8 +126,8 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   query->add_option("--name", *name, "Image name in --features (default: the photo's name)");
   query->add_option("--camera", *camera, "\"MODEL WIDTH HEIGHT PARAMS...\"")->required();
-  query->callback([&] {
-    run = [&] {
+  query->callback([&, image, features, name, camera, feature, extractor_options] {
+    run = [&, image, features, name, camera, feature, extractor_options] {
       ResolveKeys(common);
       const wire::Camera wire_camera = ParseCamera(*camera);
       wire::LocalizeRequest request;
@@ -155,9 +149,12 @@ int main(int argc, char** argv) {
       return response.status() == wire::OK ? 0 : 1;
     };
   });
+}
 
+void AddBatchCommand(CLI::App& app, CommonArguments& common, CommandRunner& run) {
   CLI::App* batch = app.add_subcommand("batch", "Localize a query list; write a submission file");
   auto lists = std::make_shared<std::vector<std::string>>();
+  auto features = std::make_shared<std::string>();
   auto out = std::make_shared<std::string>();
   auto inflight = std::make_shared<int>(16);
   batch->add_option("--queries", *lists, "Query list(s): NAME MODEL WIDTH HEIGHT PARAMS...")
@@ -168,9 +165,14 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
   batch->add_option("--out", *out, "Submission file")->required();
   batch->add_option("--inflight", *inflight, "Requests in flight")->capture_default_str();
-  batch->callback(
-      [&] { run = [&] { return RunBatchCommand(common, *lists, *features, *out, *inflight); }; });
+  batch->callback([&, lists, features, out, inflight] {
+    run = [&, lists, features, out, inflight] {
+      return RunBatchCommand(common, *lists, *features, *out, *inflight);
+    };
+  });
+}
 
+void AddHealthCommand(CLI::App& app, CommonArguments& common, CommandRunner& run) {
   CLI::App* health = app.add_subcommand(
       "health",
       "Ask a process whether it is ready (exit 0) or not (1); on its admin endpoint, "
@@ -178,8 +180,8 @@ int main(int argc, char** argv) {
   auto live = std::make_shared<bool>(false);
   health->add_flag("--live", *live,
                    "Liveness: exit 0 on any reply, ready or not (e.g. still loading its map)");
-  health->callback([&] {
-    run = [&] {
+  health->callback([&, live] {
+    run = [&, live] {
       ResolveKeys(common);
       LocalizationClient client(common.client);
       const wire::HealthResponse response = client.Health();
@@ -191,6 +193,9 @@ int main(int argc, char** argv) {
       return *live || response.status() == wire::OK ? 0 : 1;
     };
   });
+}
+
+void AddReloadCommand(CLI::App& app, CommonArguments& common, CommandRunner& run) {
   CLI::App* reload = app.add_subcommand(
       "reload", "Reload the server's map (its admin endpoint, or with an admin CURVE key)");
   reload->callback([&] {
@@ -204,6 +209,9 @@ int main(int argc, char** argv) {
       return response.status() == wire::OK ? 0 : 1;
     };
   });
+}
+
+void AddInfoCommand(CLI::App& app, CommonArguments& common, CommandRunner& run) {
   CLI::App* info = app.add_subcommand("info", "Show the served map's description");
   info->callback([&] {
     run = [&] {
@@ -213,6 +221,28 @@ int main(int argc, char** argv) {
       return 0;
     };
   });
+}
+
+}  // namespace
+}  // namespace hscloc
+
+int main(int argc, char** argv) {
+  using namespace hscloc;
+  CLI::App app{"hscloc-client: localize photos or features against an hscloc server"};
+  app.require_subcommand(1);
+  // The global options work on either side of the subcommand (`batch --server X`): what a
+  // subcommand does not know falls through to them. Subcommands inherit this when added.
+  app.fallthrough();
+  app.set_version_flag("--version", "hscloc-client 0.1.0");
+  CommonArguments common;
+  AddCommonOptions(app, common);
+  std::function<int()> run;
+
+  AddQueryCommand(app, common, run);
+  AddBatchCommand(app, common, run);
+  AddHealthCommand(app, common, run);
+  AddReloadCommand(app, common, run);
+  AddInfoCommand(app, common, run);
 
   try {
     app.parse(argc, argv);
