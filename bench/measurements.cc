@@ -167,7 +167,7 @@ json ServerThroughput(const fs::path& bundle, const std::vector<LocalizationQuer
   options.max_queue = 1024;
   LocalizationService service(bundle, options);
   ClientOptions client_options;
-  client_options.server = service.Start();
+  client_options.servers = {service.Start()};
   client_options.timeout_ms = 600000;
   const auto run = [&](int clients, size_t per_client) {
     std::vector<double> latencies;

@@ -65,6 +65,23 @@ BatchSummary RunBatch(const std::vector<QueryWithIntrinsics>& queries,
   std::mutex mutex;
   std::atomic<size_t> next{0};
   std::exception_ptr error;
+  // Answers come in any order; each query's lines are held until those before it are written,
+  // so that the files are in query order, the same from run to run, and grow as the batch goes.
+  struct Answer {
+    bool done = false;
+    std::string pose_line;     // empty: refused
+    std::string failure_line;  // empty: localized
+  };
+  std::vector<Answer> answers(queries.size());
+  size_t written = 0;
+  const auto write_ready = [&] {
+    for (; written < answers.size() && answers[written].done; ++written) {
+      submission << answers[written].pose_line;
+      failures << answers[written].failure_line;
+    }
+    submission << std::flush;
+    failures << std::flush;
+  };
   const Timer timer;
   const auto worker = [&] {
     try {
@@ -75,19 +92,21 @@ BatchSummary RunBatch(const std::vector<QueryWithIntrinsics>& queries,
             query.name, CameraToWire(query.camera), features.Read(query.name), options.float16));
         std::lock_guard<std::mutex> lock(mutex);
         const std::string basename = ImageBasename(query.name);
+        Answer& answer = answers[i];
         if (response.status() == wire::OK || response.status() == wire::NOT_LOCALIZED) {
           // As `hscloc localize`: a failed query gets the top-1 retrieved image's pose.
-          submission << FormatPoseLine(basename, PoseFromWire(response.cam_from_world()))
-                     << std::flush;
+          answer.pose_line = FormatPoseLine(basename, PoseFromWire(response.cam_from_world()));
         }
         if (response.status() == wire::OK) {
           ++summary.num_localized;
         } else {
           ++summary.num_failed;
-          failures << basename << ' ' << wire::Status_Name(response.status()) << ' '
-                   << response.error_message() << '\n'
-                   << std::flush;
+          answer.failure_line =
+              fmt::format("{} {} {}\n", basename, wire::Status_Name(response.status()),
+                          response.error_message());
         }
+        answer.done = true;
+        write_ready();
         progress.SetStatus(
             fmt::format("{} localized, {} failed", summary.num_localized, summary.num_failed));
         progress.Advance();

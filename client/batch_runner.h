@@ -1,5 +1,6 @@
 // The client's batch mode: a query list with its features sent to an hscloc server with several
-// requests in flight, written as the same submission `hscloc localize` writes.
+// requests in flight, written as the same submission `hscloc localize` writes, in query order
+// whatever order the replies come in.
 #pragma once
 
 #include <cstddef>

@@ -89,7 +89,7 @@ TEST(BatchRunner, NoServerIsAClientErrorAfterTheRetries) {
   options.inflight = 1;
   options.show_progress = false;
   // Nothing listens there: every attempt times out.
-  options.client.server = "tcp://127.0.0.1:1";
+  options.client.servers = {"tcp://127.0.0.1:1"};
   options.client.timeout_ms = 50;
   options.client.retries = 1;
   EXPECT_THROW(RunBatch({SomeQuery("a.jpg")}, features, options), ClientError);

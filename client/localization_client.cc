@@ -1,10 +1,12 @@
 #include "client/localization_client.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <cmath>
 #include <cstring>
 #include <sstream>
+#include <thread>
 #include <zmq.hpp>
 #include <zmq_addon.hpp>
 
@@ -45,6 +47,15 @@ uint16_t ToHalf(float value) {
 struct LocalizationClient::State {
   zmq::context_t context{1};
   zmq::socket_t socket;
+  // The socket's connection events (zmq_socket_monitor), so that a server that dies or refuses
+  // connections is left at once rather than after the timeout.
+  zmq::socket_t monitor;
+  uint64_t generation = 0;  // names each socket's monitor endpoint
+  // Whether the socket ever completed a handshake with its server: a connection that drops after
+  // that lost a server that was there; one refused at the handshake (a CURVE key the server does
+  // not admit) is reconnected by ZeroMQ and only the timeout gives up on it, as before.
+  bool connected = false;
+  bool handshaken = false;
 };
 
 wire::Camera ParseCamera(const std::string& text) {
@@ -110,6 +121,10 @@ LocalizationClient::LocalizationClient(const ClientOptions& options)
     throw std::invalid_argument(fmt::format("client: timeout_ms {} and retries {} must be positive",
                                             options_.timeout_ms, options_.retries));
   }
+  if (options_.servers.empty()) throw std::invalid_argument("client: no server given");
+  for (const std::string& server : options_.servers) {
+    if (server.empty()) throw std::invalid_argument("client: an empty server endpoint");
+  }
   if (!options_.curve_secret_key.empty() && options_.curve_public_key.empty()) {
     char public_key[41];
     if (zmq_curve_public(public_key, options_.curve_secret_key.c_str()) != 0) {
@@ -132,6 +147,8 @@ LocalizationClient::LocalizationClient(const ClientOptions& options)
 LocalizationClient::~LocalizationClient() = default;
 
 void LocalizationClient::Connect() {
+  const std::string& server = options_.servers[current_];
+  state_->monitor = zmq::socket_t();
   state_->socket = zmq::socket_t(state_->context, zmq::socket_type::dealer);
   // A closed attempt's unsent request is dropped rather than delaying the exit.
   state_->socket.set(zmq::sockopt::linger, 0);
@@ -140,47 +157,116 @@ void LocalizationClient::Connect() {
     state_->socket.set(zmq::sockopt::curve_publickey, options_.curve_public_key);
     state_->socket.set(zmq::sockopt::curve_secretkey, options_.curve_secret_key);
   }
+  const std::string monitor_endpoint = fmt::format("inproc://hscloc-client-monitor-{}-{}",
+                                                   static_cast<void*>(this), ++state_->generation);
+  if (zmq_socket_monitor(state_->socket.handle(), monitor_endpoint.c_str(),
+                         ZMQ_EVENT_CONNECTED | ZMQ_EVENT_DISCONNECTED | ZMQ_EVENT_CONNECT_RETRIED |
+                             ZMQ_EVENT_HANDSHAKE_SUCCEEDED) != 0) {
+    throw std::runtime_error("client: cannot monitor the connection");
+  }
+  state_->monitor = zmq::socket_t(state_->context, zmq::socket_type::pair);
+  state_->monitor.connect(monitor_endpoint);
+  state_->connected = false;
+  state_->handshaken = false;
   try {
-    state_->socket.connect(options_.server);
+    state_->socket.connect(server);
   } catch (const zmq::error_t& error) {
     throw std::invalid_argument(
-        fmt::format("client: cannot connect to '{}': {}", options_.server, error.what()));
+        fmt::format("client: cannot connect to '{}': {}", server, error.what()));
+  }
+}
+
+void LocalizationClient::FailOver() {
+  current_ = (current_ + 1) % options_.servers.size();
+  Connect();
+}
+
+LocalizationClient::Attempt LocalizationClient::Send(const std::string& payload,
+                                                     std::chrono::milliseconds timeout,
+                                                     wire::Response& reply) {
+  // The call id travels as an envelope frame that the server echoes, so a late reply to an
+  // abandoned attempt is recognised and dropped.
+  const std::string call_id = std::to_string(++next_call_);
+  state_->socket.send(zmq::buffer(call_id), zmq::send_flags::sndmore);
+  state_->socket.send(zmq::buffer(payload), zmq::send_flags::none);
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (true) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) return Attempt::kTimedOut;
+    zmq::pollitem_t items[] = {{state_->socket.handle(), 0, ZMQ_POLLIN, 0},
+                               {state_->monitor.handle(), 0, ZMQ_POLLIN, 0}};
+    zmq::poll(items, 2, left);
+    if (items[1].revents & ZMQ_POLLIN) {
+      std::vector<zmq::message_t> event;
+      if (zmq::recv_multipart(state_->monitor, std::back_inserter(event)) && !event.empty() &&
+          event[0].size() >= sizeof(uint16_t)) {
+        uint16_t kind = 0;
+        std::memcpy(&kind, event[0].data(), sizeof(kind));
+        state_->connected = state_->connected || kind == ZMQ_EVENT_CONNECTED;
+        state_->handshaken = state_->handshaken || kind == ZMQ_EVENT_HANDSHAKE_SUCCEEDED;
+        // A dropped connection loses the request; a refused one never carried it.
+        if (kind == ZMQ_EVENT_DISCONNECTED && state_->handshaken) return Attempt::kConnectionLost;
+        if (kind == ZMQ_EVENT_CONNECT_RETRIED && !state_->connected) return Attempt::kRefused;
+      }
+    }
+    if (!(items[0].revents & ZMQ_POLLIN)) continue;
+    std::vector<zmq::message_t> frames;
+    if (!zmq::recv_multipart(state_->socket, std::back_inserter(frames)) || frames.size() != 2 ||
+        frames[0].to_string() != call_id) {
+      continue;
+    }
+    if (!reply.ParseFromArray(frames[1].data(), static_cast<int>(frames[1].size()))) {
+      throw ClientError(
+          fmt::format("{}: the reply is not an hscloc Response", options_.servers[current_]));
+    }
+    return Attempt::kAnswered;
   }
 }
 
 wire::Response LocalizationClient::Call(wire::Request request) {
   request.set_protocol_version(kClientProtocolVersion);
   const std::string payload = request.SerializeAsString();
-  for (int attempt = 0; attempt <= options_.retries; ++attempt) {
-    // The call id travels as an envelope frame that the server echoes, so a late reply to an
-    // abandoned attempt is recognised and dropped.
-    const std::string call_id = std::to_string(++next_call_);
-    state_->socket.send(zmq::buffer(call_id), zmq::send_flags::sndmore);
-    state_->socket.send(zmq::buffer(payload), zmq::send_flags::none);
-    const auto deadline =
-        std::chrono::steady_clock::now() + std::chrono::milliseconds(options_.timeout_ms);
-    while (true) {
-      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
-          deadline - std::chrono::steady_clock::now());
-      if (left.count() <= 0) break;
-      zmq::pollitem_t item = {state_->socket.handle(), 0, ZMQ_POLLIN, 0};
-      zmq::poll(&item, 1, left);
-      if (!(item.revents & ZMQ_POLLIN)) continue;
-      std::vector<zmq::message_t> frames;
-      if (!zmq::recv_multipart(state_->socket, std::back_inserter(frames)) || frames.size() != 2 ||
-          frames[0].to_string() != call_id) {
-        continue;
-      }
-      wire::Response response;
-      if (!response.ParseFromArray(frames[1].data(), static_cast<int>(frames[1].size()))) {
-        throw ClientError(fmt::format("{}: the reply is not an hscloc Response", options_.server));
-      }
-      return response;
+  const bool resendable = !request.has_reload();
+  const auto timeout = std::chrono::milliseconds(options_.timeout_ms);
+  const auto deadline = std::chrono::steady_clock::now() + timeout * (options_.retries + 1);
+  int timeouts = 0;
+  size_t failed_fast_in_a_row = 0;    // lost or refused connections, not timeouts
+  std::vector<std::string> outcomes;  // per attempt, for the error message
+  while (true) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+        deadline - std::chrono::steady_clock::now());
+    const std::string server = options_.servers[current_];
+    wire::Response reply;
+    const Attempt attempt = Send(payload, std::min(timeout, left), reply);
+    if (attempt == Attempt::kAnswered) return reply;
+    outcomes.push_back(fmt::format("{} {}", server,
+                                   attempt == Attempt::kTimedOut         ? "timed out"
+                                   : attempt == Attempt::kConnectionLost ? "lost the connection"
+                                                                         : "refused"));
+    timeouts += attempt == Attempt::kTimedOut;
+    failed_fast_in_a_row = attempt == Attempt::kTimedOut ? 0 : failed_fast_in_a_row + 1;
+    FailOver();  // Lazy Pirate: a fresh socket for whatever comes next
+    if (!resendable) {
+      throw ClientError(fmt::format(
+          "{}: no reply ({}); a reload changes the server's state and is not resent: ask Health "
+          "which map it serves",
+          server, outcomes.back()));
     }
-    Connect();  // Lazy Pirate: a fresh socket for the next attempt
+    if (timeouts > options_.retries || std::chrono::steady_clock::now() >= deadline) {
+      throw ClientError(fmt::format("no reply within {} ms after {} attempts: {}",
+                                    options_.timeout_ms * (options_.retries + 1), outcomes.size(),
+                                    fmt::join(outcomes, ", ")));
+    }
+    ++failovers_;
+    // Every server refused or dropped us: they may be restarting; wait a little before the next
+    // round.
+    if (failed_fast_in_a_row >= options_.servers.size()) {
+      std::this_thread::sleep_for(std::min(std::chrono::milliseconds(100),
+                                           std::chrono::duration_cast<std::chrono::milliseconds>(
+                                               deadline - std::chrono::steady_clock::now())));
+    }
   }
-  throw ClientError(fmt::format("{}: no reply within {} ms after {} attempts", options_.server,
-                                options_.timeout_ms, options_.retries + 1));
 }
 
 wire::LocalizeResponse LocalizationClient::Localize(const wire::LocalizeRequest& request) {

@@ -1,8 +1,10 @@
 // The client side of the wire protocol (proto/hscloc.proto): building requests from plain arrays,
-// and a connection with timeouts, retries and socket re-creation (zguide's Lazy Pirate). Links
-// protobuf and ZeroMQ only: no libtorch, FAISS or Ceres.
+// and a connection with timeouts, retries and socket re-creation (zguide's Lazy Pirate) that
+// fails over between several servers (zguide's Freelance, all servers active). Links protobuf and
+// ZeroMQ only: no libtorch, FAISS or Ceres.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <stdexcept>
@@ -16,9 +18,15 @@ namespace hscloc {
 inline constexpr uint32_t kClientProtocolVersion = 1;
 
 struct ClientOptions {
-  std::string server = "tcp://127.0.0.1:5555";
+  // Equivalent endpoints (brokers, or servers of the same map), tried in this order: a request
+  // goes to the current one, and moves to the next when its connection drops, when it refuses
+  // connections, or when no reply came within timeout_ms.
+  std::vector<std::string> servers = {"tcp://127.0.0.1:5555"};
   int timeout_ms = 10000;  // per attempt
-  int retries = 2;         // attempts after the first, each on a new socket
+  // Attempts after the first that may end in a timeout, each on the next server and a new
+  // socket. Attempts cut short by a lost or refused connection move on at once and count only
+  // against the whole call's bound, (retries + 1) * timeout_ms.
+  int retries = 2;
   // CURVE: the server's public key turns encryption on; the client's key pair is generated when
   // left empty (then the server must accept any key), its public key derived from the secret one
   // when only that is given.
@@ -51,11 +59,19 @@ class LocalizationClient {
   LocalizationClient(const LocalizationClient&) = delete;
   LocalizationClient& operator=(const LocalizationClient&) = delete;
 
-  // Sends the request (its protocol version set here) and returns the reply. A reply that does not
-  // come within the timeout is given up on: the socket is closed, a new one connects, and the
-  // request is sent again, up to `retries` times; replies to abandoned attempts are discarded.
-  // Throws ClientError when every attempt timed out.
+  // Sends the request (its protocol version set here) and returns the reply. An attempt is given
+  // up on when the server's connection drops or is refused, or no reply comes within the timeout:
+  // the socket is closed, one to the next server connects, and the request is sent again
+  // (Localize, Health and Info are idempotent); replies to abandoned attempts are discarded.
+  // Reload changes the server's state and is never resent: its lost attempt is an error, and
+  // Health tells which map the server ended up with. Throws ClientError when no attempt got a
+  // reply.
   wire::Response Call(wire::Request request);
+
+  // The server the next request goes to.
+  const std::string& current_server() const { return options_.servers[current_]; }
+  // Requests resent to another server so far (a measure of failovers).
+  size_t failovers() const { return failovers_; }
 
   wire::LocalizeResponse Localize(const wire::LocalizeRequest& request);
   wire::HealthResponse Health();
@@ -65,12 +81,21 @@ class LocalizationClient {
   wire::ReloadResponse Reload();
 
  private:
+  enum class Attempt { kAnswered, kTimedOut, kConnectionLost, kRefused };
+
   void Connect();
+  // Sends one attempt of the call and waits for its reply; `reply` set when kAnswered.
+  Attempt Send(const std::string& payload, std::chrono::milliseconds timeout,
+               wire::Response& reply);
+  // Moves to the next server, on a new socket.
+  void FailOver();
 
   ClientOptions options_;
   struct State;
   std::unique_ptr<State> state_;
+  size_t current_ = 0;
   uint64_t next_call_ = 0;
+  size_t failovers_ = 0;
 };
 
 }  // namespace hscloc

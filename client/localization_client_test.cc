@@ -61,9 +61,10 @@ TEST(ClientRequestTest, PacksFloat32ExactlyAndFloat16ToNearest) {
                std::invalid_argument);
 }
 
-TEST(LocalizationClientTest, GivesUpAfterItsRetries) {
+TEST(LocalizationClientTest, GivesUpWithinItsBoundWhenNoServerListens) {
   ClientOptions options;
-  options.server = "tcp://127.0.0.1:9";  // nothing listens on the discard port
+  // Nothing listens on the discard ports: every connection is refused.
+  options.servers = {"tcp://127.0.0.1:9", "tcp://127.0.0.1:19"};
   options.timeout_ms = 100;
   options.retries = 2;
   LocalizationClient client(options);
@@ -72,12 +73,99 @@ TEST(LocalizationClientTest, GivesUpAfterItsRetries) {
     client.Health();
     FAIL() << "expected a ClientError";
   } catch (const ClientError& error) {
-    EXPECT_THAT(error.what(), HasSubstr("after 3 attempts"));
+    EXPECT_THAT(error.what(), HasSubstr("no reply within 300 ms"));
+    EXPECT_THAT(error.what(), HasSubstr("tcp://127.0.0.1:9 refused"));
+    EXPECT_THAT(error.what(), HasSubstr("tcp://127.0.0.1:19 refused"));
   }
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  EXPECT_GE(seconds, 0.25);  // three attempts of 100 ms each (poll may wake a little early)
+  EXPECT_GE(seconds, 0.25);  // the whole bound, (retries + 1) x 100 ms, tried round and round
   EXPECT_LT(seconds, 3.0);
+}
+
+TEST(LocalizationClientTest, AServerThatNeverAnswersTimesOutRetriesTimes) {
+  zmq::context_t context(1);
+  zmq::socket_t silent(context, zmq::socket_type::router);
+  silent.bind("tcp://127.0.0.1:0");
+  ClientOptions options;
+  options.servers = {silent.get(zmq::sockopt::last_endpoint)};
+  options.timeout_ms = 100;
+  options.retries = 2;
+  LocalizationClient client(options);
+  try {
+    client.Info();
+    FAIL() << "expected a ClientError";
+  } catch (const ClientError& error) {
+    EXPECT_THAT(error.what(), HasSubstr("after 3 attempts"));
+    EXPECT_THAT(error.what(), HasSubstr("timed out"));
+  }
+}
+
+// Two stand-in servers on loopback, a client given both: the first one to die in the test.
+struct TwoServers {
+  TwoServers() {
+    dying->bind("tcp://127.0.0.1:0");
+    other.bind("tcp://127.0.0.1:0");
+    options.servers = {dying->get(zmq::sockopt::last_endpoint),
+                       other.get(zmq::sockopt::last_endpoint)};
+  }
+  // Waits for the first server's request and closes it unanswered: its connection drops.
+  void TakeARequestAndDie() {
+    std::vector<zmq::message_t> frames;
+    ASSERT_TRUE(zmq::recv_multipart(*dying, std::back_inserter(frames)));
+    dying.reset();
+  }
+
+  zmq::context_t context{1};
+  std::unique_ptr<zmq::socket_t> dying =
+      std::make_unique<zmq::socket_t>(context, zmq::socket_type::router);
+  zmq::socket_t other{context, zmq::socket_type::router};
+  ClientOptions options;
+};
+
+TEST(LocalizationClientTest, ARequestMovesToTheNextServerWhenItsServerDies) {
+  TwoServers two;
+  zmq::socket_t& healthy = two.other;
+  const ClientOptions& options = two.options;
+  two.options.timeout_ms = 20000;  // the failover must not wait for it
+  LocalizationClient client(options);
+  std::thread servers([&] {
+    two.TakeARequestAndDie();
+    std::vector<zmq::message_t> frames;
+    ASSERT_TRUE(zmq::recv_multipart(healthy, std::back_inserter(frames)));
+    ASSERT_EQ(frames.size(), 3u);
+    wire::Response answer;
+    answer.set_error_message("from the second server");
+    healthy.send(frames[0], zmq::send_flags::sndmore);
+    healthy.send(frames[1], zmq::send_flags::sndmore);
+    healthy.send(zmq::buffer(answer.SerializeAsString()));
+  });
+  const auto start = std::chrono::steady_clock::now();
+  wire::Request request;
+  request.mutable_info();
+  EXPECT_EQ(client.Call(request).error_message(), "from the second server");
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_LT(seconds, 5.0);
+  EXPECT_EQ(client.failovers(), 1u);
+  EXPECT_EQ(client.current_server(), options.servers[1]);
+  servers.join();
+}
+
+TEST(LocalizationClientTest, AReloadIsNotResentToAnotherServer) {
+  TwoServers two;
+  LocalizationClient client(two.options);
+  std::thread server([&] { two.TakeARequestAndDie(); });
+  try {
+    client.Reload();
+    FAIL() << "expected a ClientError";
+  } catch (const ClientError& error) {
+    EXPECT_THAT(error.what(), HasSubstr("is not resent"));
+  }
+  server.join();
+  zmq::pollitem_t item = {two.other.handle(), 0, ZMQ_POLLIN, 0};
+  zmq::poll(&item, 1, std::chrono::milliseconds(300));
+  EXPECT_FALSE(item.revents & ZMQ_POLLIN) << "the reload reached the other server";
 }
 
 // A server that ignores the first request and answers every later one, so the client must retry
@@ -112,7 +200,7 @@ TEST(LocalizationClientTest, RetriesOnANewSocketAndDropsLateReplies) {
     }
   });
   ClientOptions options;
-  options.server = endpoint;
+  options.servers = {endpoint};
   options.timeout_ms = 300;
   options.retries = 1;
   LocalizationClient client(options);

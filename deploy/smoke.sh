@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Smoke test of a scaled-out deployment, with the arguments the manifests use (kubernetes/,
-# compose.yaml), as plain processes on loopback: a broker, two workers, a batch client, CURVE
-# between all of them (keys from make-keys.sh), each process probed on its own admin endpoint; one
-# worker is killed while the batch runs; every query must be answered; the broker's Prometheus
-# metrics count them, the joined and the dropped worker (checked with promtool when present);
-# everything stops cleanly.
+# compose.yaml), as plain processes on loopback: two brokers, two workers registered with both, a
+# batch client given both, CURVE between all of them (keys from make-keys.sh), each process probed
+# on its own admin endpoint. Broker A is killed while a first batch runs, then a worker while a
+# second one runs; every query must be answered, and both batches must give the same poses; the
+# surviving broker's Prometheus metrics count the replies, the joined and the dropped worker
+# (checked with promtool when present); everything stops cleanly.
 #   deploy/smoke.sh BIN_DIR CITY_DIR
 # BIN_DIR holds hscloc and hscloc-client; CITY_DIR holds city/ and a trained map/
 # (tests/make_trained_city.sh).
@@ -12,6 +13,7 @@ set -euo pipefail
 bin=$1 dir=$2
 work=$(mktemp -d)
 front=$((20000 + $$ % 20000)) back=$((front + 1)) admin=$((front + 2))
+front_b=$((front + 5)) back_b=$((front + 6)) admin_b=$((front + 7))
 pids=()
 cleanup() {
   for pid in "${pids[@]}"; do kill -9 "$pid" 2>/dev/null || true; done
@@ -22,21 +24,27 @@ trap cleanup EXIT
 bash "$(dirname "$0")/make-keys.sh" "$work/keys" "$bin/hscloc" > /dev/null
 keys=$work/keys
 
-"$bin/hscloc" serve --broker --bind "tcp://127.0.0.1:$front" --backend "tcp://127.0.0.1:$back" \
-  --admin-bind "tcp://127.0.0.1:$admin" --metrics-bind 127.0.0.1:0 \
-  --curve-secret-key "$keys/broker.key" --curve-allowed-keys "$keys/clients.txt" \
-  --backend-curve-secret-key "$keys/backend.key" --curve-allowed-worker-keys "$keys/workers.txt" \
-  > "$work/broker.log" 2>&1 &
+start_broker() {  # FRONT BACK ADMIN LOG
+  "$bin/hscloc" serve --broker --bind "tcp://127.0.0.1:$1" --backend "tcp://127.0.0.1:$2" \
+    --admin-bind "tcp://127.0.0.1:$3" --metrics-bind 127.0.0.1:0 \
+    --curve-secret-key "$keys/broker.key" --curve-allowed-keys "$keys/clients.txt" \
+    --backend-curve-secret-key "$keys/backend.key" --curve-allowed-worker-keys "$keys/workers.txt" \
+    > "$4" 2>&1 &
+  pids+=("$!")
+}
+start_broker "$front" "$back" "$admin" "$work/broker-a.log"
+broker_a=$!
+start_broker "$front_b" "$back_b" "$admin_b" "$work/broker.log"
 broker=$!
-pids+=("$broker")
 for n in 1 2; do
-  "$bin/hscloc" serve --map "$dir/map" --connect "tcp://127.0.0.1:$back" --workers 1 \
+  "$bin/hscloc" serve --map "$dir/map" --connect "tcp://127.0.0.1:$back" \
+    --connect "tcp://127.0.0.1:$back_b" --workers 1 \
     --admin-bind "tcp://127.0.0.1:$((admin + n))" --metrics-bind 127.0.0.1:0 \
     --curve-secret-key "$keys/worker.key" --curve-server-key "$keys/backend.pub" \
     > "$work/worker$n.log" 2>&1 &
   pids+=("$!")
 done
-worker1=${pids[1]} worker2=${pids[2]}
+worker1=${pids[2]} worker2=${pids[3]}
 
 # The manifests' probes: each process on its own admin endpoint, until it is ready.
 probe() {
@@ -50,33 +58,53 @@ probe() {
   "$bin/hscloc-client" --server "tcp://127.0.0.1:$port" --timeout-ms 2000 --retries 0 \
     health --live > /dev/null
 }
-for port in $((admin + 1)) $((admin + 2)) "$admin"; do probe "$port"; done
+for port in $((admin + 1)) $((admin + 2)) "$admin" "$admin_b"; do probe "$port"; done
+# Each broker's Health lists its workers with the map each serves: both workers, on both.
+for port in "$admin" "$admin_b"; do
+  for _ in $(seq 100); do
+    "$bin/hscloc-client" --server "tcp://127.0.0.1:$port" health > "$work/broker-health.txt"
+    grep -q "2 workers" "$work/broker-health.txt" && break
+    sleep 0.1
+  done
+  grep -q "2 workers.*2 on map@" "$work/broker-health.txt" ||
+    { cat "$work/broker-health.txt"; echo "smoke: a broker does not list both workers" >&2; exit 1; }
+done
 
-client=("$bin/hscloc-client" --server "tcp://127.0.0.1:$front" --timeout-ms 120000 --retries 0
+client=("$bin/hscloc-client" --server "tcp://127.0.0.1:$front" --server "tcp://127.0.0.1:$front_b"
+        --timeout-ms 120000 --retries 0
         --curve-server-key "$keys/broker.pub" --curve-secret-key "$keys/client.key")
 "${client[@]}" health > /dev/null
-echo "smoke: broker and workers up and ready, CURVE on"
+echo "smoke: two brokers and two workers up and ready, CURVE on"
 if "$bin/hscloc-client" --server "tcp://127.0.0.1:$front" --timeout-ms 1000 --retries 0 \
     --curve-server-key "$keys/broker.pub" health > /dev/null 2>&1; then
   echo "smoke: a client with a key not on the allow-list was answered" >&2
   exit 1
 fi
 
-queries="$dir/city/queries/day_time_queries_with_intrinsics.txt"
-"${client[@]}" batch --queries "$queries" --features "$dir/city/features.h5" \
-  --out "$work/submission.txt" --inflight 4 > "$work/batch.log" 2>&1 &
-batch=$!
-sleep 3
-kill -9 "$worker1"
-echo "smoke: killed worker 1 during the batch"
-wait "$batch" || { cat "$work/batch.log"; echo "smoke: the batch failed" >&2; exit 1; }
-
-expected=$(grep -cv '^\s*\(#\|$\)' "$queries")
-answered=$(wc -l < "$work/submission.txt")
-failed=$(wc -l < "$work/submission.txt.failures.txt")
-echo "smoke: $answered of $expected queries answered, $failed not localized"
-[ "$answered" -eq "$expected" ] || { echo "smoke: queries were lost" >&2; exit 1; }
-[ "$failed" -eq 0 ] || { cat "$work/submission.txt.failures.txt"; exit 1; }
+queries=("$dir/city/queries/day_time_queries_with_intrinsics.txt"
+         "$dir/city/queries/night_time_queries_with_intrinsics.txt")
+expected=$(cat "${queries[@]}" | grep -cv '^\s*\(#\|$\)')
+# A batch during which `victim` is killed once a tenth of the queries are answered (the
+# submission grows in query order); every query must be answered.
+batch_killing() {  # NAME VICTIM_PID WHAT
+  "${client[@]}" batch --queries "${queries[@]}" --features "$dir/city/features.h5" \
+    --out "$work/$1.txt" --inflight 4 > "$work/$1.log" 2>&1 &
+  local batch=$!
+  until [ "$(cat "$work/$1.txt" 2>/dev/null | wc -l)" -ge $((expected / 10)) ]; do sleep 0.02; done
+  kill -9 "$2"
+  echo "smoke: killed $3 during the batch"
+  wait "$batch" || { cat "$work/$1.log"; echo "smoke: the batch failed" >&2; exit 1; }
+  local answered failed
+  answered=$(wc -l < "$work/$1.txt")
+  failed=$(wc -l < "$work/$1.txt.failures.txt")
+  echo "smoke: $answered of $expected queries answered, $failed not localized"
+  [ "$answered" -eq "$expected" ] || { echo "smoke: queries were lost" >&2; exit 1; }
+  [ "$failed" -eq 0 ] || { cat "$work/$1.txt.failures.txt"; exit 1; }
+}
+batch_killing first "$broker_a" "broker A"
+batch_killing submission "$worker1" "worker 1"
+cmp -s "$work/first.txt" "$work/submission.txt" || { diff "$work/first.txt" "$work/submission.txt" | head -20;
+  echo "smoke: the poses differ between the two batches" >&2; exit 1; }
 grep -q "requests go to others" "$work/broker.log" || echo "smoke: (no request was in flight on worker 1)"
 
 # The broker's metrics, as Prometheus scrapes them (the URL it printed: its port was free).

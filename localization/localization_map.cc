@@ -63,6 +63,7 @@ std::shared_ptr<const LocalizationMap> LocalizationMap::Load(
   auto map = std::make_shared<LocalizationMap>();
   map->dir_ = bundle_dir;
   map->metadata_ = bundle.metadata();
+  map->manifest_sha256_ = bundle.manifest_sha256();
   map->scene_ = ReadBlob(bundle, map_blobs::kScene, ReadSceneGeometry);
   if (options.load_observations) {
     ReadBlob(bundle, map_blobs::kObservations,

@@ -44,6 +44,8 @@ class LocalizationMap {
 
   const std::filesystem::path& dir() const { return dir_; }
   const nlohmann::json& metadata() const { return metadata_; }
+  // The bundle's manifest hash as loaded (MapBundle::manifest_sha256).
+  const std::string& manifest_sha256() const { return manifest_sha256_; }
   const Scene& scene() const { return scene_; }
   const LabelTree& label_tree() const { return label_tree_; }
   const Visibility& visibility() const { return visibility_; }
@@ -59,6 +61,7 @@ class LocalizationMap {
  private:
   std::filesystem::path dir_;
   nlohmann::json metadata_;
+  std::string manifest_sha256_;
   Scene scene_;
   LabelTree label_tree_;
   Visibility visibility_;

@@ -35,6 +35,7 @@ struct ManifestEntry {
 struct Manifest {
   nlohmann::json json;
   std::map<std::string, ManifestEntry> files;
+  std::string sha256;  // of the manifest's bytes as read
 };
 
 bool IsValidBlobName(const std::string& name) {
@@ -115,6 +116,7 @@ Manifest ReadManifest(const fs::path& dir) {
   const std::string text((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
 
   Manifest manifest;
+  manifest.sha256 = Sha256Hex(text);
   try {
     manifest.json = nlohmann::json::parse(text);
   } catch (const nlohmann::json::parse_error& parse_error) {
@@ -401,6 +403,7 @@ MapBundle MapBundle::Open(const std::filesystem::path& bundle_dir,
   }
   bundle.metadata_ = manifest.json.at("metadata");
   bundle.manifest_ = std::move(manifest.json);
+  bundle.manifest_sha256_ = std::move(manifest.sha256);
   return bundle;
 }
 

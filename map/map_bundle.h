@@ -70,6 +70,9 @@ class MapBundle {
   const std::filesystem::path& dir() const { return dir_; }
   const nlohmann::json& metadata() const { return metadata_; }
   const nlohmann::json& manifest() const { return manifest_; }
+  // The SHA-256 (hex) of the manifest as read: it lists every blob's hash, so it names the bundle's
+  // content (two bundles differ here whenever any byte of theirs does).
+  const std::string& manifest_sha256() const { return manifest_sha256_; }
   // Whether the manifest lists the blob (read or not).
   bool HasBlob(const std::string& name) const { return sizes_.count(name) > 0; }
   std::vector<std::string> BlobNames() const;
@@ -83,6 +86,7 @@ class MapBundle {
  private:
   std::filesystem::path dir_;
   nlohmann::json manifest_;
+  std::string manifest_sha256_;
   nlohmann::json metadata_;
   std::map<std::string, uint64_t> sizes_;     // every blob of the manifest
   std::map<std::string, std::string> blobs_;  // the blobs read

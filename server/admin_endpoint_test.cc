@@ -48,7 +48,7 @@ TEST(AdminEndpointTest, ReloadIsDeniedOnThePublicEndpointAndAcceptedOnTheAdminOn
 
   const wire::ReloadResponse reloaded = ClientFor(service.admin_endpoint()).Reload();
   EXPECT_EQ(reloaded.status(), wire::OK) << reloaded.error_message();
-  EXPECT_EQ(reloaded.map_id(), "map");
+  EXPECT_EQ(reloaded.map_id(), MapIdOf(dir / "map"));
   EXPECT_EQ(service.reloads_executed(), 2u);
   // The admin endpoint answers the probes too.
   EXPECT_EQ(ClientFor(service.admin_endpoint()).Health().status(), wire::OK);
@@ -158,13 +158,13 @@ TEST(AdminEndpointTest, HealthSaysLoadingUntilTheMapIsVerified) {
 
 TEST(AdminEndpointTest, AWorkerWithoutABrokerIsAliveAndNotReadyAndSaysWhy) {
   HSCLOC_REQUIRE_TRAINED_SMALL_CITY(dir);
-  ServiceOptions options = LoopbackServiceOptions("tcp://127.0.0.1:1");  // no broker there
+  ServiceOptions options = LoopbackServiceOptions({"tcp://127.0.0.1:1"});  // no broker there
   LocalizationService service(dir / "map", options);
   service.Start();
   const wire::HealthResponse health = ClientFor(service.admin_endpoint()).Health();
   EXPECT_EQ(health.status(), wire::UNAVAILABLE);
   EXPECT_THAT(health.reason(), HasSubstr("no word yet from the broker at tcp://127.0.0.1:1"));
-  EXPECT_EQ(health.map_id(), "map");
+  EXPECT_EQ(health.map_id(), MapIdOf(dir / "map"));
 }
 
 TEST(AdminEndpointTest, AWorkerIsReadyOnlyOnceItsMapIsVerifiedAndItsBrokerAnswers) {
@@ -177,7 +177,7 @@ TEST(AdminEndpointTest, AWorkerIsReadyOnlyOnceItsMapIsVerifiedAndItsBrokerAnswer
   EXPECT_THAT(lonely.reason(), HasSubstr("no worker"));
 
   HeldMap map(dir / "map", temp / "map");
-  ServiceOptions options = LoopbackServiceOptions(back);
+  ServiceOptions options = LoopbackServiceOptions({back});
   options.admin_bind = testing::IpcEndpoint("worker-admin");
   LocalizationService worker(map.dir(), options);
   auto started = std::async(std::launch::async, [&] { return worker.Start(); });

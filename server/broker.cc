@@ -5,6 +5,7 @@
 
 #include <deque>
 #include <map>
+#include <random>
 #include <set>
 #include <vector>
 #include <zmq.hpp>
@@ -28,6 +29,7 @@ struct Pending {
 struct Worker {
   int slots = 0;
   int busy = 0;
+  std::string map_id;  // as its last announcement named it
   std::chrono::steady_clock::time_point expiry;
 };
 
@@ -52,6 +54,9 @@ struct Broker::State {
   std::map<std::string, Worker> workers;
   std::map<uint64_t, std::pair<Pending, std::string>> in_flight;  // sequence -> (request, worker)
   uint64_t next_sequence = 0;
+  // Prefixes every sequence sent to a worker: a reply that a worker addressed to an earlier run
+  // of this broker (same endpoint, counter started again) is never taken for one of ours.
+  std::string incarnation;
 };
 
 void BrokerOptions::Check() const {
@@ -128,6 +133,8 @@ std::pair<std::string, std::string> Broker::Start() {
     throw;
   }
   started_s_ = NowSeconds();
+  state_->incarnation =
+      fmt::format("{:016x}:", std::random_device()() * 0x100000000ull ^ std::random_device()());
   const std::string front = state_->front.get(zmq::sockopt::last_endpoint);
   const std::string back = state_->back.get(zmq::sockopt::last_endpoint);
   thread_ = std::thread([this] { Loop(); });
@@ -147,7 +154,8 @@ void Broker::Stop() {
 
 // The broker's own Health (ready with at least one worker); any other request is refused, since
 // the broker holds no map: reload each worker on its own admin endpoint.
-void Broker::AnswerAdmin(size_t workers) {
+void Broker::AnswerAdmin() {
+  const size_t workers = state_->workers.size();
   std::vector<zmq::message_t> frames;
   if (!zmq::recv_multipart(state_->admin, std::back_inserter(frames)) || frames.size() < 2) return;
   wire::Request request;
@@ -167,6 +175,12 @@ void Broker::AnswerAdmin(size_t workers) {
   health->set_status(status);
   health->set_workers(static_cast<uint32_t>(workers));
   health->set_uptime_s(NowSeconds() - started_s_);
+  for (const auto& [id, worker] : state_->workers) {
+    wire::WorkerStatus* status = health->add_worker_status();
+    status->set_map_id(worker.map_id);
+    status->set_slots(static_cast<uint32_t>(worker.slots));
+    status->set_busy(static_cast<uint32_t>(worker.busy));
+  }
   if (workers == 0)
     health->set_reason("no worker has joined the broker (or all missed heartbeats)");
   SendReply(state_->admin, frames, response);
@@ -180,7 +194,7 @@ void Broker::Loop() {
     if (!admin_endpoint_.empty()) items.push_back({state_->admin.handle(), 0, ZMQ_POLLIN, 0});
     zmq::poll(items, options_.heartbeat_interval);
     const Clock::time_point now = Clock::now();
-    if (items.size() > 2 && (items[2].revents & ZMQ_POLLIN)) AnswerAdmin(state_->workers.size());
+    if (items.size() > 2 && (items[2].revents & ZMQ_POLLIN)) AnswerAdmin();
     if (items[0].revents & ZMQ_POLLIN) ReceiveFromWorker(now);
     if (items[1].revents & ZMQ_POLLIN) ReceiveFromClient();
     RequeueSilentWorkers(now);
@@ -199,12 +213,19 @@ void Broker::ReceiveFromWorker(Clock::time_point now) {
   const std::string& id = frames[0];
   const auto liveness = options_.heartbeat_interval * options_.heartbeat_liveness;
   if (frames.size() == 2 && frames[1].rfind(kWorkerReady, 0) == 0) {
-    // A worker's announcement, repeated as its heartbeat.
+    // A worker's announcement, repeated as its heartbeat: "READY<slots> <map id>".
     auto [worker, is_new] = state_->workers.try_emplace(id);
-    worker->second.slots = std::max(1, std::atoi(frames[1].c_str() + std::strlen(kWorkerReady)));
+    const char* slots = frames[1].c_str() + std::strlen(kWorkerReady);
+    worker->second.slots = std::max(1, std::atoi(slots));
+    const size_t space = frames[1].find(' ');
+    const std::string map_id = space == std::string::npos ? "" : frames[1].substr(space + 1);
+    if (!is_new && map_id != worker->second.map_id) {
+      spdlog::info("broker: a worker now serves {} (was {})", map_id, worker->second.map_id);
+    }
+    worker->second.map_id = map_id;
     worker->second.expiry = now + liveness;
     if (is_new) {
-      spdlog::info("broker: worker joined with {} slots", worker->second.slots);
+      spdlog::info("broker: worker joined with {} slots, serving {}", worker->second.slots, map_id);
       metrics_->CountWorkerJoined();
     }
   } else if (frames.size() >= 4) {
@@ -214,12 +235,16 @@ void Broker::ReceiveFromWorker(Clock::time_point now) {
       worker->second.expiry = now + liveness;
       worker->second.busy = std::max(0, worker->second.busy - 1);
     }
-    const uint64_t sequence = std::strtoull(frames[1].c_str(), nullptr, 10);
-    if (state_->in_flight.erase(sequence) > 0) {
+    const std::string& incarnation = state_->incarnation;
+    const bool ours = frames[1].compare(0, incarnation.size(), incarnation) == 0;
+    const uint64_t sequence =
+        ours ? std::strtoull(frames[1].c_str() + incarnation.size(), nullptr, 10) : 0;
+    if (ours && state_->in_flight.erase(sequence) > 0) {
       metrics_->CountAnswered();
       SendFrames(state_->front, std::vector<std::string>(frames.begin() + 2, frames.end()));
     }
-    // Else a late duplicate of a request already answered by another worker: dropped.
+    // Else a late duplicate of a request already answered by another worker, or a reply meant
+    // for an earlier run of this broker: dropped.
   }
 }
 
@@ -280,7 +305,8 @@ void Broker::DispatchWaiting() {
     if (best == workers.end()) return;
     Pending pending = std::move(state_->queue.front());
     state_->queue.pop_front();
-    std::vector<std::string> frames = {best->first, std::to_string(pending.sequence)};
+    std::vector<std::string> frames = {best->first,
+                                       state_->incarnation + std::to_string(pending.sequence)};
     frames.insert(frames.end(), pending.frames.begin(), pending.frames.end());
     SendFrames(state_->back, frames);
     ++best->second.busy;
@@ -292,6 +318,9 @@ void Broker::PublishGauges() {
   size_t slots = 0;
   for (const auto& [id, worker] : state_->workers) slots += static_cast<size_t>(worker.slots);
   metrics_->SetWorkers(state_->workers.size(), slots);
+  std::map<std::string, size_t> maps;
+  for (const auto& [id, worker] : state_->workers) ++maps[worker.map_id];
+  metrics_->SetWorkerMaps(maps);
   metrics_->SetQueue(state_->queue.size(), state_->in_flight.size());
 }
 

@@ -24,7 +24,8 @@ namespace hscloc {
 
 // Control messages between broker and workers are single frames; requests and replies always
 // have an envelope and a payload (two frames or more).
-inline constexpr char kWorkerReady[] = "\x01READY";  // followed by the slot count
+// Followed by the slot count, a space and the id of the map the worker serves.
+inline constexpr char kWorkerReady[] = "\x01READY";
 inline constexpr char kHeartbeat[] = "\x01HEARTBEAT";
 
 struct BrokerOptions {
@@ -81,7 +82,7 @@ class Broker {
   void RequeueSilentWorkers(Clock::time_point now);
   void DispatchWaiting();
   void PublishGauges();
-  void AnswerAdmin(size_t workers);
+  void AnswerAdmin();
 
   BrokerOptions options_;
   std::unique_ptr<BrokerMetrics> metrics_;

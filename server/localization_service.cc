@@ -1,6 +1,7 @@
 #include "server/localization_service.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -13,6 +14,7 @@
 #include "server/messages.h"
 #include "util/check.h"
 #include "util/parallel.h"
+#include "util/sha256.h"
 #include "util/timer.h"
 
 namespace hscloc {
@@ -24,7 +26,8 @@ enum class LocalizationService::Origin : char { kPublic = 'p', kAdmin = 'a' };
 struct ZmqState {
   zmq::context_t context;
   std::unique_ptr<CurveAuthenticator> authenticator;
-  zmq::socket_t router;       // clients, or the broker in worker mode
+  // The clients' ROUTER, or in worker mode one DEALER per broker (ServiceOptions.connect's order).
+  std::vector<zmq::socket_t> publics;
   zmq::socket_t admin;        // the admin endpoint; unbound when there is none
   zmq::socket_t replies;      // workers' and reloads' replies, for the front thread
   zmq::socket_t reload_push;  // used on the reload thread only
@@ -33,6 +36,7 @@ struct ZmqState {
 
 struct LocalizationService::Job {
   Origin origin = Origin::kPublic;
+  size_t broker = 0;                     // the public socket (a worker's broker) it came through
   std::vector<zmq::message_t> envelope;  // routing identity (and a REQ client's empty delimiter)
   wire::Request request;
   Timer received;
@@ -42,6 +46,13 @@ struct LocalizationService::Job {
 struct LocalizationService::Serving {
   std::shared_ptr<const Localizer> localizer;
   std::string map_id;
+};
+
+// A reply travels on the inproc channel behind a frame naming its socket: the origin and, for a
+// public request, the index of the public socket (the broker) it came through.
+struct ReplyRoute {
+  char origin;
+  uint8_t socket;
 };
 
 namespace {
@@ -54,9 +65,27 @@ double NowSeconds() {
   return clock.ElapsedSeconds();
 }
 
-std::string MapIdOf(const std::filesystem::path& map_dir) {
-  const std::filesystem::path canonical = std::filesystem::weakly_canonical(map_dir);
-  return canonical.filename().string();
+// Whether a request's map id names `map_id`: the whole id, or the directory name before its '@'.
+bool NamesMap(const std::string& requested, const std::string& map_id) {
+  return requested == map_id || requested == map_id.substr(0, map_id.find('@'));
+}
+
+// A worker's socket to the broker at options.connect[index]. Nothing waits in it for a broker
+// that is down or not yet up: heartbeats and replies to it are dropped (the broker requeues what
+// it gave us when it comes back, and a client resends through another broker), so that no stale
+// reply reaches a restarted broker and the front thread never blocks on a dead one.
+void ConnectToBroker(zmq::socket_t& socket, const ServiceOptions& options, size_t index) {
+  socket.set(zmq::sockopt::immediate, 1);
+  socket.set(zmq::sockopt::sndtimeo, 0);
+  if (!options.curve_secret_key.empty()) {
+    MakeCurveClient(socket, options.curve_server_key, options.curve_secret_key);
+  }
+  try {
+    socket.connect(options.connect[index]);
+  } catch (const zmq::error_t& error) {
+    ThrowInvalidArgument("cannot connect to {} (--connect): {}", options.connect[index],
+                         error.what());
+  }
 }
 
 // Whether the connection `message` came through authenticated with an admin CURVE key.
@@ -69,6 +98,14 @@ bool FromAdminKey(zmq::message_t& message) {
 
 void ServiceOptions::Check() const {
   THROW_CHECK_MSG(!bind.empty() || !connect.empty(), "ServiceOptions.bind is empty");
+  THROW_CHECK_MSG(connect.size() <= 255, "ServiceOptions.connect: {} brokers, at most 255",
+                  connect.size());
+  for (size_t i = 0; i < connect.size(); ++i) {
+    THROW_CHECK_MSG(!connect[i].empty(), "ServiceOptions.connect (--connect): an empty endpoint");
+    THROW_CHECK_MSG(
+        std::find(connect.begin(), connect.begin() + i, connect[i]) == connect.begin() + i,
+        "ServiceOptions.connect (--connect): {} is given twice", connect[i]);
+  }
   THROW_CHECK_MSG(max_queue >= 1, "ServiceOptions.max_queue = {}", max_queue);
   THROW_CHECK_MSG(max_message_bytes >= 1024, "ServiceOptions.max_message_bytes = {}",
                   max_message_bytes);
@@ -115,6 +152,7 @@ LocalizationService::LocalizationService(std::filesystem::path map_dir,
     : map_dir_(std::move(map_dir)), options_(options) {
   options_.Check();
   num_workers_ = ResolveNumThreads(options_.workers);
+  last_broker_contact_s_.assign(options_.connect.size(), -1);
 }
 
 LocalizationService::~LocalizationService() { Stop(); }
@@ -142,29 +180,25 @@ void LocalizationService::OpenSockets() {
         zmq_->context, std::vector<CurveDomain>{{kCurveDomain, options_.curve_allowed_client_keys,
                                                  options_.curve_admin_keys}});
   }
-  zmq_->router = zmq::socket_t(zmq_->context,
-                               worker_mode ? zmq::socket_type::dealer : zmq::socket_type::router);
-  // Messages up to twice the limit arrive and are refused with a reply; beyond that ZeroMQ drops
-  // them (and the connection) before they take the memory.
-  zmq_->router.set(zmq::sockopt::maxmsgsize, static_cast<int64_t>(2 * options_.max_message_bytes));
-  zmq_->router.set(zmq::sockopt::linger, 1000);
-  if (worker_mode) {
-    if (curve) {
-      MakeCurveClient(zmq_->router, options_.curve_server_key, options_.curve_secret_key);
+  const size_t num_publics = worker_mode ? options_.connect.size() : 1;
+  for (size_t index = 0; index < num_publics; ++index) {
+    zmq::socket_t& socket = zmq_->publics.emplace_back(
+        zmq_->context, worker_mode ? zmq::socket_type::dealer : zmq::socket_type::router);
+    // Messages up to twice the limit arrive and are refused with a reply; beyond that ZeroMQ
+    // drops them (and the connection) before they take the memory.
+    socket.set(zmq::sockopt::maxmsgsize, static_cast<int64_t>(2 * options_.max_message_bytes));
+    socket.set(zmq::sockopt::linger, 1000);
+    if (worker_mode) {
+      ConnectToBroker(socket, options_, index);
+    } else {
+      // Replies to clients that went away are dropped rather than queued forever.
+      socket.set(zmq::sockopt::router_mandatory, 0);
+      if (curve) MakeCurveServer(socket, options_.curve_secret_key, kCurveDomain);
+      BindOrThrow(socket, options_.bind, "--bind");
     }
-    try {
-      zmq_->router.connect(options_.connect);
-    } catch (const zmq::error_t& error) {
-      ThrowInvalidArgument("cannot connect to {} (--connect): {}", options_.connect, error.what());
-    }
-    endpoint_ = options_.connect;
-  } else {
-    // Replies to clients that went away are dropped rather than queued forever.
-    zmq_->router.set(zmq::sockopt::router_mandatory, 0);
-    if (curve) MakeCurveServer(zmq_->router, options_.curve_secret_key, kCurveDomain);
-    BindOrThrow(zmq_->router, options_.bind, "--bind");
-    endpoint_ = zmq_->router.get(zmq::sockopt::last_endpoint);
   }
+  endpoint_ = worker_mode ? fmt::format("{}", fmt::join(options_.connect, ", "))
+                          : zmq_->publics[0].get(zmq::sockopt::last_endpoint);
   if (!options_.admin_bind.empty()) {
     zmq_->admin = zmq::socket_t(zmq_->context, zmq::socket_type::router);
     zmq_->admin.set(zmq::sockopt::linger, 1000);
@@ -216,20 +250,21 @@ LocalizationService::Readiness LocalizationService::CurrentReadiness() const {
     return {wire::LOADING, fmt::format("loading and verifying the map {}", map_dir_.string())};
   }
   if (options_.connect.empty()) return {wire::OK, ""};
-  const std::string hint =
-      options_.curve_secret_key.empty() ? "" : " (is this worker's key on its allow-list?)";
-  if (last_broker_contact_s_ < 0) {
-    return {wire::UNAVAILABLE,
-            fmt::format("no word yet from the broker at {}{}", options_.connect, hint)};
-  }
-  const double silent_s = NowSeconds() - last_broker_contact_s_;
+  // Ready while any broker hears from us: the others may be down for a restart.
   const double liveness_s = options_.heartbeat_liveness *
                             std::chrono::duration<double>(options_.heartbeat_interval).count();
-  if (silent_s > liveness_s) {
-    return {wire::UNAVAILABLE, fmt::format("no word from the broker at {} for {:.1f} s{}",
-                                           options_.connect, silent_s, hint)};
+  std::vector<std::string> silent;
+  for (size_t broker = 0; broker < options_.connect.size(); ++broker) {
+    const double contact_s = last_broker_contact_s_[broker];
+    if (contact_s >= 0 && NowSeconds() - contact_s <= liveness_s) return {wire::OK, ""};
+    silent.push_back(
+        contact_s < 0 ? fmt::format("no word yet from the broker at {}", options_.connect[broker])
+                      : fmt::format("no word from the broker at {} for {:.1f} s",
+                                    options_.connect[broker], NowSeconds() - contact_s));
   }
-  return {wire::OK, ""};
+  const std::string hint =
+      options_.curve_secret_key.empty() ? "" : " (is this worker's key on its allow-list?)";
+  return {wire::UNAVAILABLE, fmt::format("{}{}", fmt::join(silent, "; "), hint)};
 }
 
 wire::Response LocalizationService::HealthReply() const {
@@ -269,27 +304,32 @@ void LocalizationService::Reply(const Job& job, const wire::Response& response) 
   // Counted first, so that a client holding its reply finds it counted.
   metrics_->CountReply(job.request, response.status());
   ++answered_;
-  SendReply(job.origin == Origin::kAdmin ? zmq_->admin : zmq_->router, job.envelope, response);
+  SendReply(SocketFor(job.origin, job.broker), job.envelope, response);
+}
+
+zmq::socket_t& LocalizationService::SocketFor(Origin origin, size_t broker) {
+  return origin == Origin::kAdmin ? zmq_->admin : zmq_->publics[broker];
 }
 
 // Moves one message of the replies channel to the socket its first frame names.
 void LocalizationService::ForwardReply() {
   std::vector<zmq::message_t> frames;
   if (!zmq::recv_multipart(zmq_->replies, std::back_inserter(frames)) || frames.empty()) return;
-  const bool admin = frames.front().size() == 1 &&
-                     *frames.front().data<char>() == static_cast<char>(Origin::kAdmin);
+  ReplyRoute route{};
+  if (frames.front().size() != sizeof(route)) return;
+  std::memcpy(&route, frames.front().data(), sizeof(route));
   frames.erase(frames.begin());
   // Counted first, as in Reply.
   ++answered_;
-  SendFrames(admin ? zmq_->admin : zmq_->router, frames);
+  SendFrames(SocketFor(static_cast<Origin>(route.origin), route.socket), frames);
 }
 
 // Queues a reply on the replies channel (from a worker or the reload thread).
 void LocalizationService::PushReply(zmq::socket_t& push, const Job& job,
                                     const wire::Response& response) {
   metrics_->CountReply(job.request, response.status());
-  const char origin = static_cast<char>(job.origin);
-  push.send(zmq::message_t(&origin, 1), zmq::send_flags::sndmore);
+  const ReplyRoute route{static_cast<char>(job.origin), static_cast<uint8_t>(job.broker)};
+  push.send(zmq::message_t(&route, sizeof(route)), zmq::send_flags::sndmore);
   SendReply(push, job.envelope, response);
 }
 
@@ -343,18 +383,19 @@ void LocalizationService::AcceptLocalize(std::unique_ptr<Job> job) {
   }
 }
 
-void LocalizationService::ReceiveRequest(Origin origin) {
-  zmq::socket_t& socket = origin == Origin::kAdmin ? zmq_->admin : zmq_->router;
+void LocalizationService::ReceiveRequest(Origin origin, size_t broker) {
+  zmq::socket_t& socket = SocketFor(origin, broker);
   std::vector<zmq::message_t> frames;
   if (!zmq::recv_multipart(socket, std::back_inserter(frames))) return;
   if (origin == Origin::kPublic && !options_.connect.empty()) {
-    last_broker_contact_s_ = NowSeconds();
+    last_broker_contact_s_[broker] = NowSeconds();
   }
   if (frames.size() < 2) return;  // nothing to route a reply to, or the broker's heartbeat
   zmq::message_t payload = std::move(frames.back());
   frames.pop_back();
   auto job = std::make_unique<Job>();
   job->origin = origin;
+  job->broker = broker;
   job->envelope = std::move(frames);
   if (payload.size() > options_.max_message_bytes) {
     Reply(*job, ErrorResponse(wire::INVALID_REQUEST,
@@ -395,9 +436,18 @@ void LocalizationService::ReceiveRequest(Origin origin) {
   }
 }
 
+// The announcement doubles as the heartbeat, so a broker that restarted learns of us again, and
+// names the map served, so that a broker's Health tells which map each worker serves. Never
+// blocking: a broker that is down (or refused our key) misses it, and Health goes on answering.
+void LocalizationService::AnnounceToBrokers() {
+  const std::string ready = fmt::format("{}{} {}", kWorkerReady, num_workers_, map_id());
+  for (zmq::socket_t& broker : zmq_->publics) {
+    broker.send(zmq::buffer(ready), zmq::send_flags::dontwait);
+  }
+}
+
 void LocalizationService::FrontLoop() {
   const bool worker_mode = !options_.connect.empty();
-  const std::string ready = fmt::format("{}{}", kWorkerReady, num_workers_);
   auto next_ready = std::chrono::steady_clock::now();
   while (true) {
     if (stopping_ && reloader_->stopped()) {
@@ -406,21 +456,23 @@ void LocalizationService::FrontLoop() {
     }
     if (worker_mode && !stopping_ && CurrentServing() != nullptr &&
         std::chrono::steady_clock::now() >= next_ready) {
-      // The announcement doubles as the heartbeat, so a broker that restarted learns of us again.
-      // Never blocking: with no broker to take it (none yet, or one that refused our key), the
-      // announcement is dropped and Health goes on answering.
-      zmq_->router.send(zmq::buffer(ready), zmq::send_flags::dontwait);
+      AnnounceToBrokers();
       next_ready = std::chrono::steady_clock::now() + options_.heartbeat_interval;
     }
-    std::vector<zmq::pollitem_t> items = {{zmq_->replies.handle(), 0, ZMQ_POLLIN, 0},
-                                          {zmq_->router.handle(), 0, ZMQ_POLLIN, 0}};
+    std::vector<zmq::pollitem_t> items = {{zmq_->replies.handle(), 0, ZMQ_POLLIN, 0}};
+    for (zmq::socket_t& socket : zmq_->publics)
+      items.push_back({socket.handle(), 0, ZMQ_POLLIN, 0});
     if (!admin_endpoint_.empty()) items.push_back({zmq_->admin.handle(), 0, ZMQ_POLLIN, 0});
     zmq::poll(items, std::chrono::milliseconds(50));
     if (items[0].revents & ZMQ_POLLIN) ForwardReply();
-    if (items[1].revents & ZMQ_POLLIN) ReceiveRequest(Origin::kPublic);
-    if (items.size() > 2 && (items[2].revents & ZMQ_POLLIN)) ReceiveRequest(Origin::kAdmin);
+    for (size_t index = 0; index < zmq_->publics.size(); ++index) {
+      if (items[1 + index].revents & ZMQ_POLLIN) ReceiveRequest(Origin::kPublic, index);
+    }
+    if (!admin_endpoint_.empty() && (items.back().revents & ZMQ_POLLIN)) {
+      ReceiveRequest(Origin::kAdmin);
+    }
   }
-  RefuseLateRequests(zmq_->router);
+  for (zmq::socket_t& socket : zmq_->publics) RefuseLateRequests(socket);
   if (!admin_endpoint_.empty()) RefuseLateRequests(zmq_->admin);
   // The last workers' replies may still be in flight on the inproc channel.
   while (true) {
@@ -479,9 +531,10 @@ wire::Response LocalizationService::Localize(const Job& job, int worker) const {
   wire::LocalizeResponse* localize = response.mutable_localize();
   localize->set_request_id(request.request_id());
   const std::shared_ptr<const Serving> serving = CurrentServing();
+  localize->set_map_id(serving->map_id);
   std::optional<StageTimings> timings;
   try {
-    if (!request.map_id().empty() && request.map_id() != serving->map_id) {
+    if (!request.map_id().empty() && !NamesMap(request.map_id(), serving->map_id)) {
       ThrowInvalidArgument("map '{}' requested, this server serves '{}'", request.map_id(),
                            serving->map_id);
     }
@@ -504,7 +557,10 @@ wire::Response LocalizationService::Localize(const Job& job, int worker) const {
   }
   const double server_ms = job.received.ElapsedMilliseconds();
   localize->mutable_timings()->set_server_ms(server_ms);
-  if (timings) metrics_->ObserveLocalize(*timings, job.queue_seconds, server_ms * 1e-3);
+  if (timings) {
+    metrics_->ObserveLocalize(*timings, localize->num_inliers(), job.queue_seconds,
+                              server_ms * 1e-3);
+  }
   spdlog::info("request {} worker {} {}: {} keypoints, {} inliers, {:.1f} ms{}",
                request.request_id(), worker, StatusName(localize->status()),
                request.num_keypoints(), localize->num_inliers(), server_ms,
@@ -524,7 +580,7 @@ void LocalizationService::Stop() {
   for (std::thread& worker : workers_) worker.join();
   workers_.clear();
   if (front_thread_.joinable()) front_thread_.join();
-  zmq_->router.close();
+  for (zmq::socket_t& socket : zmq_->publics) socket.close();
   zmq_->admin.close();
   zmq_->replies.close();
   zmq_->reload_push.close();
@@ -547,10 +603,13 @@ ReloadOutcome LocalizationService::LoadMap() {
   ReloadOutcome outcome;
   const Timer load_time;
   try {
+    // A link to the map (turned to roll an update) is resolved once, so that the bundle loaded
+    // and the name in its id are the same; the hash is that of the manifest as loaded.
+    const std::filesystem::path bundle = std::filesystem::weakly_canonical(map_dir_);
     auto serving = std::make_shared<Serving>();
     serving->localizer = std::make_shared<const Localizer>(
-        Localizer::FromBundle(map_dir_, options_.localizer, options_.device));
-    serving->map_id = MapIdOf(map_dir_);
+        Localizer::FromBundle(bundle, options_.localizer, options_.device));
+    serving->map_id = MapIdOf(bundle, serving->localizer->map().manifest_sha256());
     outcome.map_id = serving->map_id;
     std::lock_guard<std::mutex> lock(serving_mutex_);
     serving_ = std::move(serving);
@@ -566,6 +625,15 @@ ReloadOutcome LocalizationService::LoadMap() {
   }
   metrics_->CountMapLoad(outcome.success);
   return outcome;
+}
+
+std::string MapIdOf(const std::filesystem::path& map_dir, const std::string& manifest_sha256) {
+  const std::filesystem::path canonical = std::filesystem::weakly_canonical(map_dir);
+  return fmt::format("{}@{}", canonical.filename().string(), manifest_sha256.substr(0, 16));
+}
+
+std::string MapIdOf(const std::filesystem::path& map_dir) {
+  return MapIdOf(map_dir, Sha256HexOfFile(map_dir / "manifest.json"));
 }
 
 CurveKeyPair GenerateCurveKeyPair() {

@@ -50,9 +50,11 @@ struct ServiceOptions {
   // Prometheus metrics over HTTP at http://<metrics_bind>/metrics ("host:port", port 0: a free
   // one; server/metrics.h lists them). Empty: counted, not exposed.
   std::string metrics_bind;
-  // When set, the service does not bind: it works for the broker at this endpoint
-  // (server/broker.h), announcing its worker count and heartbeating every heartbeat_interval.
-  std::string connect;
+  // When set, the service does not bind: it works for the brokers at these endpoints
+  // (server/broker.h), announcing its worker count and map to each and heartbeating every
+  // heartbeat_interval, and answers each request to the broker it came from. Several brokers, all
+  // active, leave no single point of failure: a client that loses one resends to another.
+  std::vector<std::string> connect;
   std::chrono::milliseconds heartbeat_interval{500};
   // A worker that has heard nothing from its broker for this many heartbeat intervals is not
   // ready (its Health says so); the broker's heartbeat interval should not be longer.
@@ -65,8 +67,9 @@ struct ServiceOptions {
   ComputeDevice device = ComputeDevice::kCpu;
   // CURVE (Z85 keys, 40 characters). Serving on `bind`: the server's secret key turns encryption
   // on; clients must then present one of the allowed public keys (an empty list allows any
-  // client with the server's public key), and the admin keys may also reload. Working for a
-  // broker (`connect`): this worker's secret key, and the public key of the broker's backend.
+  // client with the server's public key), and the admin keys may also reload. Working for
+  // brokers (`connect`): this worker's secret key, and the public key of the brokers' backend
+  // (the brokers of one deployment share their backend's key pair).
   std::string curve_secret_key;
   std::vector<std::string> curve_allowed_client_keys;
   std::vector<std::string> curve_admin_keys;
@@ -117,7 +120,10 @@ class LocalizationService {
 
   void OpenSockets();
   void FrontLoop();
-  void ReceiveRequest(Origin origin);
+  // `broker`: which of the brokers' sockets, for a worker's public requests.
+  void ReceiveRequest(Origin origin, size_t broker = 0);
+  zmq::socket_t& SocketFor(Origin origin, size_t broker);
+  void AnnounceToBrokers();
   void AcceptReload(std::unique_ptr<Job> job, bool admin);
   void AcceptLocalize(std::unique_ptr<Job> job);
   void Reply(const Job& job, const wire::Response& response);
@@ -156,8 +162,16 @@ class LocalizationService {
   std::string endpoint_;
   std::string admin_endpoint_;
   double started_s_ = 0;
-  double last_broker_contact_s_ = -1;  // front thread only; < 0: never
+  // Per broker, when it was last heard from; front thread only; < 0: never.
+  std::vector<double> last_broker_contact_s_;
 };
+
+// The id under which a service serves the map bundle in `map_dir`: "<directory name>@<the first
+// 16 hex digits of its manifest's SHA-256>", readable, and different for two maps whenever their
+// bytes differ (the manifest holds every blob's hash), whatever their directories are called.
+std::string MapIdOf(const std::filesystem::path& map_dir);
+// The same from the manifest's hash, for a bundle already read.
+std::string MapIdOf(const std::filesystem::path& map_dir, const std::string& manifest_sha256);
 
 // A new CURVE key pair in Z85 (40 characters each).
 struct CurveKeyPair {

@@ -76,7 +76,7 @@ class LocalizationServiceTest : public ::testing::Test {
   }
   static ClientOptions ClientFor(const std::string& endpoint) {
     ClientOptions options;
-    options.server = endpoint;
+    options.servers = {endpoint};
     options.timeout_ms = 60000;
     options.retries = 0;
     return options;
@@ -99,7 +99,7 @@ TEST_F(LocalizationServiceTest, AnswersAsTheInProcessLocalizer) {
   const wire::InfoResponse info = client.Info();
   EXPECT_EQ(info.descriptor_dim(), 256u);
   EXPECT_EQ(info.num_images(), localizer.map().scene().NumImages());
-  EXPECT_EQ(info.map_id(), "map");
+  EXPECT_EQ(info.map_id(), MapIdOf(MapDir()));
   EXPECT_EQ(client.Health().status(), wire::OK);
   for (size_t i = 0; i < 4; ++i) {
     const Query& query = Queries()[i];
@@ -153,7 +153,7 @@ TEST_F(LocalizationServiceTest, MetricsCountTheRepliesAndTimeTheStages) {
         << stage;
   }
   EXPECT_GT(sample(R"(hscloc_localize_duration_seconds_sum{stage="match"})"), 0);
-  EXPECT_EQ(sample(R"(hscloc_map_info{map_id="map"})"), 1);
+  EXPECT_EQ(sample(fmt::format(R"(hscloc_map_info{{map_id="{}"}})", MapIdOf(MapDir()))), 1);
   EXPECT_EQ(sample(R"(hscloc_map_loads_total{outcome="success"})"), 1);
   EXPECT_GT(sample("hscloc_map_load_seconds"), 0);
   EXPECT_EQ(sample("hscloc_queue_depth"), 0);

@@ -19,10 +19,31 @@
 #include <string>
 
 #include "client/localization_client.h"
+#include "scene/feature_io.h"
+#include "scene/query_io.h"
 #include "server/broker.h"
 #include "server/localization_service.h"
+#include "server/wire.h"
 
 namespace hscloc::testing {
+
+// Localize requests for the first `limit` day queries of a synthetic city (its queries/ and
+// features.h5), 3 retrieved images each to keep them short.
+inline std::vector<wire::LocalizeRequest> DayQueryRequests(const std::filesystem::path& city,
+                                                           size_t limit) {
+  std::vector<wire::LocalizeRequest> requests;
+  const auto features = OpenH5Features(city / "features.h5");
+  for (const QueryWithIntrinsics& query :
+       ReadQueryList(city / "queries" / "day_time_queries_with_intrinsics.txt")) {
+    if (requests.size() == limit) break;
+    ImageFeatures image = features->Read(query.name);
+    requests.push_back(QueryToWire({query.name, query.camera, std::move(image.keypoints),
+                                    std::move(image.descriptors), std::nullopt},
+                                   true));
+    requests.back().mutable_options()->set_top_k(3);
+  }
+  return requests;
+}
 
 // Every endpoint on a free loopback port, heartbeats every 100 ms.
 inline BrokerOptions LoopbackBrokerOptions() {
@@ -35,8 +56,8 @@ inline BrokerOptions LoopbackBrokerOptions() {
 }
 
 // One worker thread, both endpoints on free loopback ports, heartbeats every 100 ms (with
-// `connect` set, a worker of that broker).
-inline ServiceOptions LoopbackServiceOptions(const std::string& connect = "") {
+// `connect` set, a worker of those brokers).
+inline ServiceOptions LoopbackServiceOptions(const std::vector<std::string>& connect = {}) {
   ServiceOptions options;
   options.bind = "tcp://127.0.0.1:0";
   options.admin_bind = "tcp://127.0.0.1:0";
@@ -48,7 +69,7 @@ inline ServiceOptions LoopbackServiceOptions(const std::string& connect = "") {
 
 inline ClientOptions PatientClientOptions(const std::string& endpoint, int timeout_ms = 60000) {
   ClientOptions options;
-  options.server = endpoint;
+  options.servers = {endpoint};
   options.timeout_ms = timeout_ms;
   options.retries = 0;
   return options;

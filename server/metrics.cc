@@ -83,6 +83,7 @@ struct ServiceMetrics::Families {
   prometheus::Family<prometheus::Counter>& requests;
   prometheus::Family<prometheus::Histogram>& durations;
   prometheus::Histogram* stage[7];  // queue, retrieval, match, visibility, pose, localize, server
+  prometheus::Histogram& inliers;
   prometheus::Gauge& queue_depth;
   prometheus::Gauge& in_flight;
   prometheus::Gauge& workers;
@@ -103,6 +104,13 @@ struct ServiceMetrics::Families {
                       .Help("Localize requests: time per stage (queue: waiting for a worker; "
                             "localize: the Localizer's total; server: receipt to reply)")
                       .Register(registry)),
+        inliers(BuildHistogram()
+                    .Name("hscloc_localize_inliers")
+                    .Help("Localize requests answered with a pose or NOT_LOCALIZED: the inliers "
+                          "of the pose returned (0 when there is none)")
+                    .Register(registry)
+                    .Add({}, prometheus::Histogram::BucketBoundaries{0, 5, 10, 12, 20, 30, 50, 100,
+                                                                     200, 500})),
         queue_depth(
             SingleGauge(registry, "hscloc_queue_depth", "Localize requests waiting for a worker")),
         in_flight(SingleGauge(registry, "hscloc_requests_in_flight",
@@ -146,8 +154,9 @@ void ServiceMetrics::CountReply(const wire::Request& request, wire::Status statu
       .Increment();
 }
 
-void ServiceMetrics::ObserveLocalize(const StageTimings& timings, double queue_seconds,
-                                     double server_seconds) {
+void ServiceMetrics::ObserveLocalize(const StageTimings& timings, size_t inliers,
+                                     double queue_seconds, double server_seconds) {
+  families_->inliers.Observe(static_cast<double>(inliers));
   const double seconds[7] = {queue_seconds,           timings.retrieval_ms * 1e-3,
                              timings.match_ms * 1e-3, timings.visibility_ms * 1e-3,
                              timings.pose_ms * 1e-3,  timings.total_ms * 1e-3,
@@ -185,6 +194,8 @@ struct BrokerMetrics::Families {
   prometheus::Counter& joined;
   prometheus::Counter& dropped;
   prometheus::Counter& retried;
+  prometheus::Family<prometheus::Gauge>& worker_maps;
+  std::map<std::string, size_t> published_maps;  // what worker_maps shows now
 
   explicit Families(prometheus::Registry& registry)
       : Families(registry, BuildCounter()
@@ -209,7 +220,12 @@ struct BrokerMetrics::Families {
         dropped(SingleCounter(registry, "hscloc_broker_workers_dropped_total",
                               "Workers dropped after missing their heartbeats")),
         retried(SingleCounter(registry, "hscloc_broker_requests_retried_total",
-                              "Requests a dropped worker held, handed to another")) {}
+                              "Requests a dropped worker held, handed to another")),
+        worker_maps(BuildGauge()
+                        .Name("hscloc_broker_worker_maps")
+                        .Help("Workers heartbeating to the broker, by the id of the map they "
+                              "serve (two ids while a map update rolls)")
+                        .Register(registry)) {}
 };
 
 BrokerMetrics::BrokerMetrics(const std::string& bind, const std::string& option)
@@ -241,6 +257,19 @@ void BrokerMetrics::SetQueue(size_t waiting, size_t in_flight) {
 void BrokerMetrics::SetWorkers(size_t workers, size_t slots) {
   families_->workers.Set(static_cast<double>(workers));
   families_->slots.Set(static_cast<double>(slots));
+}
+
+void BrokerMetrics::SetWorkerMaps(const std::map<std::string, size_t>& workers_by_map) {
+  if (workers_by_map == families_->published_maps) return;
+  for (const auto& [map_id, count] : families_->published_maps) {
+    if (workers_by_map.count(map_id) == 0) {
+      families_->worker_maps.Remove(&families_->worker_maps.Add({{"map_id", map_id}}));
+    }
+  }
+  for (const auto& [map_id, count] : workers_by_map) {
+    families_->worker_maps.Add({{"map_id", map_id}}).Set(static_cast<double>(count));
+  }
+  families_->published_maps = workers_by_map;
 }
 
 }  // namespace hscloc

@@ -9,17 +9,20 @@
 //            localize_duration_seconds{stage}         queue, retrieval, match, visibility, pose,
 //                                                     localize (the Localizer) and server (receipt
 //                                                     to reply), as histograms
+//            localize_inliers                         the returned pose's inliers, a histogram
 //            queue_depth, requests_in_flight, workers
-//            map_info{map_id} (1 for the map served), map_load_seconds,
-//            map_loaded_timestamp_seconds map_loads_total{outcome}                 every load of
-//            the map directory, the first
+//            map_info{map_id}                         1 for the map served
+//            map_load_seconds, map_loaded_timestamp_seconds
+//            map_loads_total{outcome}                 every load of the map directory, the first
 //                                                     included: success or failure
 //   broker   broker_requests_total{outcome}          answered, overloaded
 //            broker_queue_depth, broker_requests_in_flight, broker_workers, broker_worker_slots
+//            broker_worker_maps{map_id}              workers by the map they serve
 //            broker_workers_joined_total, broker_workers_dropped_total,
 //            broker_requests_retried_total
 #pragma once
 
+#include <map>
 #include <memory>
 #include <string>
 #include <string_view>
@@ -50,8 +53,10 @@ class ServiceMetrics {
 
   // A reply to a request (`request` may be empty: the message could not be decoded).
   void CountReply(const wire::Request& request, wire::Status status);
-  // A Localize request's stages, its wait in the queue and its time from receipt to reply.
-  void ObserveLocalize(const StageTimings& timings, double queue_seconds, double server_seconds);
+  // A Localize request's stages, the inliers of its pose, its wait in the queue and its time
+  // from receipt to reply.
+  void ObserveLocalize(const StageTimings& timings, size_t inliers, double queue_seconds,
+                       double server_seconds);
   void SetQueue(size_t waiting, size_t running);
   void SetWorkers(int workers);
   void CountMapLoad(bool success);
@@ -80,6 +85,7 @@ class BrokerMetrics {
   void CountWorkerDropped(size_t requests_retried);
   void SetQueue(size_t waiting, size_t in_flight);
   void SetWorkers(size_t workers, size_t slots);
+  void SetWorkerMaps(const std::map<std::string, size_t>& workers_by_map);
 
  private:
   struct Families;

@@ -53,9 +53,9 @@ TEST(ServiceMetricsTest, AScrapeReadsTheCountsHistogramsAndGauges) {
   timings.visibility_ms = 1;
   timings.pose_ms = 20;
   timings.total_ms = 55;
-  metrics.ObserveLocalize(timings, 0.002, 0.060);
+  metrics.ObserveLocalize(timings, 40, 0.002, 0.060);
   timings.match_ms = 300;
-  metrics.ObserveLocalize(timings, 0.002, 0.400);
+  metrics.ObserveLocalize(timings, 8, 0.002, 0.400);
   metrics.SetQueue(5, 2);
   metrics.SetWorkers(4);
   metrics.CountMapLoad(true);
@@ -78,6 +78,10 @@ TEST(ServiceMetricsTest, AScrapeReadsTheCountsHistogramsAndGauges) {
       MetricSample(text, R"(hscloc_localize_duration_seconds_bucket{stage="match",le="0.5"})"), 2);
   EXPECT_DOUBLE_EQ(*MetricSample(text, R"(hscloc_localize_duration_seconds_sum{stage="server"})"),
                    0.46);
+  // 8 inliers fall under the 12 a pose needs, 40 above.
+  EXPECT_EQ(MetricSample(text, R"(hscloc_localize_inliers_bucket{le="10"})"), 1);
+  EXPECT_EQ(MetricSample(text, R"(hscloc_localize_inliers_bucket{le="50"})"), 2);
+  EXPECT_EQ(MetricSample(text, "hscloc_localize_inliers_sum"), 48);
   EXPECT_EQ(MetricSample(text, "hscloc_queue_depth"), 5);
   EXPECT_EQ(MetricSample(text, "hscloc_requests_in_flight"), 2);
   EXPECT_EQ(MetricSample(text, "hscloc_workers"), 4);
@@ -94,12 +98,13 @@ TEST(ServiceMetricsTest, PromtoolAcceptsTheExposition) {
   HSCLOC_REQUIRE_PROMTOOL(promtool);
   ServiceMetrics service("127.0.0.1:0");
   service.CountReply(RequestOfKind(wire::Request::kLocalize), wire::OK);
-  service.ObserveLocalize(StageTimings(), 0, 0.01);
+  service.ObserveLocalize(StageTimings(), 0, 0, 0.01);
   service.SetMap("small", 0.4);
   EXPECT_EQ(PromtoolProblems(promtool, HttpGet(service.url())), "");
   BrokerMetrics broker("127.0.0.1:0");
   broker.CountAnswered();
   broker.CountWorkerJoined();
+  broker.SetWorkerMaps({{"small@0123", 1}});
   EXPECT_EQ(PromtoolProblems(promtool, HttpGet(broker.url())), "");
 }
 
@@ -118,7 +123,11 @@ TEST(BrokerMetricsTest, AScrapeReadsTheWorkersAndRetries) {
   metrics.CountOverloaded();
   metrics.SetQueue(12, 4);
   metrics.SetWorkers(1, 4);
+  metrics.SetWorkerMaps({{"city@aaaa", 2}, {"city@bbbb", 1}});
+  metrics.SetWorkerMaps({{"city@bbbb", 3}});  // the update rolled over every worker
   const std::string text = HttpGet(metrics.url());
+  EXPECT_EQ(MetricSample(text, R"(hscloc_broker_worker_maps{map_id="city@bbbb"})"), 3);
+  EXPECT_EQ(MetricSample(text, R"(hscloc_broker_worker_maps{map_id="city@aaaa"})"), std::nullopt);
   EXPECT_EQ(MetricSample(text, "hscloc_broker_workers_joined_total"), 2);
   EXPECT_EQ(MetricSample(text, "hscloc_broker_workers_dropped_total"), 1);
   EXPECT_EQ(MetricSample(text, "hscloc_broker_requests_retried_total"), 3);

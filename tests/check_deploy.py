@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
 """Checks deploy/: the Kubernetes manifests and compose file parse and hold what an operator
-relies on (probes, resource requests, the autoscaler, the map volume), every process they start
+relies on (probes, resource requests, the autoscaler, the map volume), no single point of failure
+(two broker replicas on different nodes, a disruption budget, every worker registered with every
+broker and the clients given every broker), every process they start
 runs with CURVE (keys from a Secret) and is probed on its own admin endpoint, never through a
 Service, exposes its metrics where Prometheus scrapes them, the autoscaler scales on the broker's
 queue beside CPU, the processes use the arguments deploy/smoke.sh exercises, and the systemd unit
@@ -27,7 +29,8 @@ for path in sorted((deploy / "kubernetes").glob("*.yaml")):
         if document:
             documents.append((path.name, document))
 kinds = {document["kind"] for _, document in documents}
-for kind in ("Deployment", "Service", "HorizontalPodAutoscaler", "PersistentVolumeClaim"):
+for kind in ("Deployment", "StatefulSet", "Service", "HorizontalPodAutoscaler",
+             "PersistentVolumeClaim", "PodDisruptionBudget"):
     check(kind in kinds, f"kubernetes: no {kind}")
 
 # The CURVE flags each role must run with.
@@ -86,7 +89,7 @@ services = [d["metadata"]["name"] for _, d in documents if d["kind"] == "Service
 smoke = (deploy / "smoke.sh").read_text()
 arguments = {}
 for name, document in documents:
-    if document["kind"] != "Deployment":
+    if document["kind"] not in ("Deployment", "StatefulSet"):
         continue
     pod = document["spec"]["template"]["spec"]
     secret_volumes = {v["name"] for v in pod.get("volumes", []) if "secret" in v}
@@ -111,6 +114,39 @@ for name, document in documents:
             check(flag in smoke, f"{where}: {flag} is not exercised by smoke.sh")
 check("--broker" in arguments.get("broker", []), "kubernetes: the broker does not run --broker")
 check("--connect" in arguments.get("worker", []), "kubernetes: workers do not --connect")
+
+
+def connected(args):
+    return [args[i + 1] for i, a in enumerate(args[:-1]) if a == "--connect"]
+
+
+# No single point of failure: two brokers, each with its own name, never on one node, never both
+# disrupted at once, and every worker registered with each of them.
+brokers = [d for _, d in documents if d["kind"] == "StatefulSet" and
+           d["spec"]["selector"]["matchLabels"].get("role") == "broker"]
+check(len(brokers) == 1, "kubernetes: the brokers are not one StatefulSet")
+if brokers:
+    spec = brokers[0]["spec"]
+    replicas = spec.get("replicas", 1)
+    check(replicas >= 2, f"kubernetes: {replicas} broker replica(s); one is a single point of failure")
+    headless = [d for _, d in documents if d["kind"] == "Service" and
+                d["metadata"]["name"] == spec.get("serviceName")]
+    check(headless and headless[0]["spec"].get("clusterIP") == "None",
+          "kubernetes: the brokers' Service is not headless (one name per broker)")
+    anti = spec["template"]["spec"].get("affinity", {}).get("podAntiAffinity", {})
+    terms = anti.get("requiredDuringSchedulingIgnoredDuringExecution", [])
+    check(any(t.get("topologyKey") == "kubernetes.io/hostname" and
+              t["labelSelector"]["matchLabels"] == spec["selector"]["matchLabels"] for t in terms),
+          "kubernetes: two brokers may land on one node (no required anti-affinity)")
+    budgets = [d for _, d in documents if d["kind"] == "PodDisruptionBudget" and
+               d["spec"]["selector"]["matchLabels"] == spec["selector"]["matchLabels"]]
+    check(budgets and budgets[0]["spec"].get("minAvailable") == 1,
+          "kubernetes: no disruption budget keeps a broker up")
+    expected = {f"tcp://{brokers[0]['metadata']['name']}-{n}.{spec.get('serviceName')}:5556"
+                for n in range(replicas)}
+    check(set(connected(arguments.get("worker", []))) == expected,
+          f"kubernetes: workers connect to {connected(arguments.get('worker', []))}, "
+          f"not to every broker {sorted(expected)}")
 hpa = [d for _, d in documents if d["kind"] == "HorizontalPodAutoscaler"]
 check(hpa and hpa[0]["spec"]["scaleTargetRef"]["name"] == "hscloc-worker",
       "the autoscaler does not scale the workers")
@@ -137,6 +173,16 @@ for role in ("broker", "worker"):
 batch = compose["services"]["batch"]["command"]
 for flag in ("--curve-server-key", "--curve-secret-key"):
     check(flag in batch, f"compose batch: runs without {flag}")
+compose_brokers = [name for name, service in compose["services"].items()
+                   if "--broker" in service.get("command", [])]
+check(len(compose_brokers) >= 2, f"compose: brokers {compose_brokers}; one is a single point of "
+                                 "failure")
+check(set(connected(compose["services"]["worker"]["command"])) ==
+      {f"tcp://{name}:5556" for name in compose_brokers},
+      "compose: the workers do not connect to every broker")
+check({batch[i + 1] for i, a in enumerate(batch[:-1]) if a == "--server"} ==
+      {f"tcp://{name}:5555" for name in compose_brokers},
+      "compose: the batch client is not given every broker")
 
 unit = configparser.ConfigParser(strict=False, interpolation=None)
 unit.optionxform = str

@@ -38,21 +38,11 @@ TEST(ScaleOutTest, AKilledWorkerLosesNoRequest) {
   testing::HsclocProcess first = StartWorker(dir / "map", back, temp / "worker1.log");
   testing::HsclocProcess second = StartWorker(dir / "map", back, temp / "worker2.log");
 
-  std::vector<wire::LocalizeRequest> requests;
-  const auto features = OpenH5Features(dir / "city" / "features.h5");
-  for (const QueryWithIntrinsics& query :
-       ReadQueryList(dir / "city" / "queries" / "day_time_queries_with_intrinsics.txt")) {
-    ImageFeatures image = features->Read(query.name);
-    requests.push_back(QueryToWire({query.name, query.camera, std::move(image.keypoints),
-                                    std::move(image.descriptors), std::nullopt},
-                                   true));
-    requests.back().mutable_options()->set_top_k(3);
-    if (requests.size() == 30) break;
-  }
+  const std::vector<wire::LocalizeRequest> requests = testing::DayQueryRequests(dir / "city", 30);
 
   // Both workers load the map and announce themselves; the first request waits for them.
   ClientOptions client_options;
-  client_options.server = front;
+  client_options.servers = {front};
   client_options.timeout_ms = 120000;
   client_options.retries = 0;
   std::atomic<size_t> next{0};

@@ -32,7 +32,7 @@ TEST(ServeProcessTest, SigtermDuringABurstOfReloadsWaitsForOneReloadAtMost) {
   const std::string admin = server.WaitForLine("admin on ");
   ASSERT_FALSE(admin.empty()) << server.Log();
   ClientOptions options;
-  options.server = admin;
+  options.servers = {admin};
   options.timeout_ms = 60000;
   options.retries = 0;
   const Timer one_reload;

@@ -1,11 +1,13 @@
 // hscloc-client: sends queries to an hscloc server. Links the client library, protobuf, ZeroMQ,
 // OpenCV and the feature readers, never libtorch, FAISS or Ceres (a test checks its libraries).
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <CLI/CLI.hpp>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <map>
 
 #include "client/batch_runner.h"
 #include "client/localization_client.h"
@@ -82,13 +84,28 @@ int RunBatchCommand(CommonArguments& common, const std::vector<std::string>& lis
 
 using CommandRunner = std::function<int()>;
 
+// A broker's workers and the maps they serve: ", 2 workers (1 on city@ab12..., 1 on ...)".
+std::string WorkersText(const wire::HealthResponse& health) {
+  if (health.workers() == 0) return "";
+  std::map<std::string, int> by_map;
+  for (const wire::WorkerStatus& worker : health.worker_status()) ++by_map[worker.map_id()];
+  std::vector<std::string> maps;
+  for (const auto& [map_id, count] : by_map) maps.push_back(fmt::format("{} on {}", count, map_id));
+  return fmt::format(", {} workers ({})", health.workers(), fmt::join(maps, ", "));
+}
+
 // The options every subcommand shares: the server, its timeouts and retries, CURVE keys and the
 // descriptors' precision.
 void AddCommonOptions(CLI::App& app, CommonArguments& common) {
-  app.add_option("--server", common.client.server, "Server endpoint")->capture_default_str();
+  app.add_option("--server", common.client.servers,
+                 "Server endpoint; repeat for several equivalent servers (brokers): a request "
+                 "moves to the next when its server dies, refuses or times out")
+      ->allow_extra_args(false)
+      ->capture_default_str();
   app.add_option("--timeout-ms", common.client.timeout_ms, "Reply timeout per attempt")
       ->capture_default_str();
-  app.add_option("--retries", common.client.retries, "Attempts after the first, on new sockets")
+  app.add_option("--retries", common.client.retries,
+                 "Attempts after the first that may time out, each on the next server")
       ->capture_default_str();
   app.add_option("--curve-server-key", common.curve_server_key_file,
                  "File with the server's CURVE public key (encrypted connection)");
@@ -187,8 +204,7 @@ void AddHealthCommand(CLI::App& app, CommonArguments& common, CommandRunner& run
       const wire::HealthResponse response = client.Health();
       std::cout << fmt::format(
           "{} map {} up {:.0f} s, {} queued{}{}\n", wire::Status_Name(response.status()),
-          response.map_id(), response.uptime_s(), response.queued_requests(),
-          response.workers() > 0 ? fmt::format(", {} workers", response.workers()) : "",
+          response.map_id(), response.uptime_s(), response.queued_requests(), WorkersText(response),
           response.reason().empty() ? "" : ": " + response.reason());
       return *live || response.status() == wire::OK ? 0 : 1;
     };

@@ -184,7 +184,8 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
   command->add_option("--backend", arguments->backend, "The broker's endpoint for workers")
       ->capture_default_str();
   command->add_option("--connect", options.connect,
-                      "Work for the broker at this endpoint instead of binding");
+                      "Work for the broker at this endpoint instead of binding; repeat the flag "
+                      "for several brokers (each request is answered to the broker it came from)");
   command->add_option("--workers", options.workers, "Worker threads (0: one per core)")
       ->capture_default_str();
   command

@@ -1,5 +1,6 @@
-"""The connection to an hscloc server: zguide's Lazy Pirate over a DEALER socket, as the C++
-client does it (client/localization_client.h)."""
+"""The connection to an hscloc server: zguide's Lazy Pirate over a DEALER socket, failing over
+between several equivalent servers (zguide's Freelance, all servers active), as the C++ client
+does it (client/localization_client.h)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,11 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Union
+from typing import Optional, Sequence, Union
 
 import numpy as np
 import zmq
+from zmq.utils.monitor import recv_monitor_message
 
 from .batch import BatchSummary, QueryInput, localize_batch
 from .camera import CameraLike
@@ -49,29 +51,33 @@ class ClientOptions:
     """Everything a connection is made from; a batch opens one connection per request in flight
     with the same options."""
 
-    endpoint: str
+    endpoints: tuple[str, ...]  # equivalent servers, tried in this order
     timeout_s: float  # per attempt
-    retries: int  # attempts after the first, each on a fresh socket
+    retries: int  # attempts after the first that may time out, each on the next server
     curve_server_key: Optional[bytes]  # None: no encryption
     curve_public_key: Optional[bytes]
     curve_secret_key: Optional[bytes]
 
 
 class Client:
-    """A connection to `hscloc serve` (docs/protocol.md).
+    """A connection to `hscloc serve` (docs/protocol.md), or to several equivalent ones (the
+    brokers of one deployment).
 
-    Each call waits `timeout_s` for its reply; without one the socket is closed, a fresh one
-    connects and the request is sent again, up to `retries` times, after which
-    ServerTimeoutError is raised. Every request carries a call id that the server echoes, so
-    that a late reply to an abandoned attempt is recognised and dropped. A failure status in the
-    reply raises ServerError naming the status and the server's message.
+    A request goes to the current server. An attempt is given up on when that server's connection
+    drops or is refused (at once), or when no reply comes within `timeout_s`; the socket is then
+    closed, one to the next server connects, and the request is sent again (localize, health and
+    info change nothing on the server). Timed-out attempts are allowed `retries` times after the
+    first, and a call never takes more than (retries + 1) * timeout_s; then ServerTimeoutError is
+    raised. Every request carries a call id that the server echoes, so that a late reply to an
+    abandoned attempt is recognised and dropped. A failure status in the reply raises ServerError
+    naming the status and the server's message.
 
     A Client is for one thread at a time; it is a context manager that closes its socket.
 
     Args:
-        endpoint: the server, e.g. "tcp://localhost:5555".
+        endpoint: the server, e.g. "tcp://localhost:5555", or a list of equivalent servers.
         timeout_s: seconds to wait for each attempt's reply.
-        retries: attempts after the first.
+        retries: attempts after the first that may time out.
         curve_server_key: the server's CURVE public key (or its .pub file): encrypts traffic.
         curve_client_keys: this client's (public, secret) CURVE keys (or their files), which the
             server's --curve-allowed-keys must list; generated when None.
@@ -79,14 +85,18 @@ class Client:
 
     def __init__(
         self,
-        endpoint: str,
+        endpoint: Union[str, Sequence[str]],
         timeout_s: float = 10.0,
         retries: int = 2,
         curve_server_key: Optional[KeyLike] = None,
         curve_client_keys: Optional[tuple[KeyLike, KeyLike]] = None,
     ):
-        if not isinstance(endpoint, str) or not endpoint:
-            raise ValueError(f"endpoint: {endpoint!r} is not a ZeroMQ endpoint")
+        endpoints = (endpoint,) if isinstance(endpoint, str) else tuple(endpoint)
+        if not endpoints:
+            raise ValueError("endpoint: no server given")
+        for one in endpoints:
+            if not isinstance(one, str) or not one:
+                raise ValueError(f"endpoint: {one!r} is not a ZeroMQ endpoint")
         if not timeout_s > 0 or not math.isfinite(timeout_s):
             raise ValueError(f"timeout_s: {timeout_s} must be a positive number of seconds")
         if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
@@ -103,7 +113,7 @@ class Client:
                 secret_key = read_curve_key(curve_client_keys[1], "curve_client_keys[1]")
         elif curve_client_keys is not None:
             raise ValueError("curve_client_keys: given without curve_server_key")
-        self._init(ClientOptions(endpoint, float(timeout_s), retries, server_key, public_key,
+        self._init(ClientOptions(endpoints, float(timeout_s), retries, server_key, public_key,
                                  secret_key))
 
     @classmethod
@@ -117,12 +127,28 @@ class Client:
         self.options = options
         self._context = zmq.Context()
         self._socket: Optional[zmq.Socket] = None
+        self._monitor: Optional[zmq.Socket] = None
+        self._current = 0
         self._next_call = 0
+        self.failovers = 0  # requests resent to another server so far
         self._connect()
 
-    def _connect(self) -> None:
+    @property
+    def current_endpoint(self) -> str:
+        """The server the next request goes to."""
+        return self.options.endpoints[self._current]
+
+    def _close_socket(self) -> None:
+        if self._monitor is not None:
+            self._monitor.close(linger=0)
+            self._monitor = None
         if self._socket is not None:
             self._socket.close(linger=0)
+            self._socket = None
+
+    def _connect(self) -> None:
+        self._close_socket()
+        endpoint = self.current_endpoint
         socket = self._context.socket(zmq.DEALER)
         # A closed attempt's unsent request is dropped rather than delaying the exit.
         socket.linger = 0
@@ -130,19 +156,25 @@ class Client:
             socket.curve_serverkey = self.options.curve_server_key
             socket.curve_publickey = self.options.curve_public_key
             socket.curve_secretkey = self.options.curve_secret_key
-        try:
-            socket.connect(self.options.endpoint)
-        except zmq.ZMQError as error:
-            socket.close(linger=0)
-            raise ValueError(f"endpoint: cannot connect to '{self.options.endpoint}': {error}") \
-                from None
+        # The connection's events, so that a server that dies or refuses connections is left at
+        # once rather than after the timeout.
+        self._monitor = socket.get_monitor_socket(
+            zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED | zmq.EVENT_CONNECT_RETRIED
+            | zmq.EVENT_HANDSHAKE_SUCCEEDED)
         self._socket = socket
+        # Whether the socket ever completed a handshake with its server: a connection that drops
+        # after that lost a server that was there; one refused at the handshake (a CURVE key the
+        # server does not admit) is reconnected by ZeroMQ and only the timeout gives up on it.
+        self._connected = self._handshaken = False
+        try:
+            socket.connect(endpoint)
+        except zmq.ZMQError as error:
+            self._close_socket()
+            raise ValueError(f"endpoint: cannot connect to '{endpoint}': {error}") from None
 
     def close(self) -> None:
         """Closes the socket; later calls raise."""
-        if self._socket is not None:
-            self._socket.close(linger=0)
-            self._socket = None
+        self._close_socket()
         self._context.term()
 
     def __enter__(self) -> "Client":
@@ -153,33 +185,77 @@ class Client:
 
     def call(self, request: pb.Request) -> pb.Response:
         """Sends a wire Request (its protocol version set here) and returns the Response, with
-        the timeouts and retries above. Raises ServerTimeoutError or ProtocolError."""
+        the failover, timeouts and retries above. A reload is never resent: its lost attempt
+        raises ServerTimeoutError. Raises ServerTimeoutError or ProtocolError."""
         if self._socket is None:
-            raise ValueError(f"client of {self.options.endpoint} is closed")
+            raise ValueError(f"client of {', '.join(self.options.endpoints)} is closed")
         request.protocol_version = PROTOCOL_VERSION
         payload = request.SerializeToString()
-        for _ in range(self.options.retries + 1):
-            self._next_call += 1
-            call_id = str(self._next_call).encode()
-            self._socket.send_multipart([call_id, payload])
-            deadline = time.monotonic() + self.options.timeout_s
-            while (left_s := deadline - time.monotonic()) > 0:
-                if not self._socket.poll(max(1, math.ceil(left_s * 1000)), zmq.POLLIN):
-                    continue
-                frames = self._socket.recv_multipart()
-                if len(frames) != 2 or frames[0] != call_id:
-                    continue  # a late reply to an abandoned attempt
-                response = pb.Response()
-                try:
-                    response.ParseFromString(frames[1])
-                except Exception as error:  # protobuf raises its DecodeError or a RuntimeWarning
-                    raise ProtocolError(
-                        f"{self.options.endpoint}: the reply is not an hscloc Response ({error})"
-                    ) from None
+        resendable = request.WhichOneof("kind") != "reload"
+        deadline = time.monotonic() + self.options.timeout_s * (self.options.retries + 1)
+        outcomes: list[str] = []
+        timeouts = failed_fast_in_a_row = 0  # failed fast: lost or refused connections
+        while True:
+            endpoint = self.current_endpoint
+            timeout_s = min(self.options.timeout_s, deadline - time.monotonic())
+            outcome, response = self._attempt(payload, timeout_s)
+            if response is not None:
                 return response
-            self._connect()  # Lazy Pirate: a fresh socket for the next attempt
-        raise ServerTimeoutError(self.options.endpoint, self.options.timeout_s,
-                                 self.options.retries + 1)
+            outcomes.append(f"{endpoint} {outcome}")
+            timeouts += outcome == "timed out"
+            failed_fast_in_a_row = 0 if outcome == "timed out" else failed_fast_in_a_row + 1
+            self._current = (self._current + 1) % len(self.options.endpoints)
+            self._connect()  # Lazy Pirate: a fresh socket for whatever comes next
+            if not resendable:
+                raise ServerTimeoutError(endpoint, self.options.timeout_s, 1,
+                                         f"{outcome}; a reload changes the server's state and is "
+                                         "not resent: ask health() which map it serves")
+            if timeouts > self.options.retries or time.monotonic() >= deadline:
+                raise ServerTimeoutError(", ".join(self.options.endpoints),
+                                         self.options.timeout_s * (self.options.retries + 1),
+                                         len(outcomes), ", ".join(outcomes))
+            self.failovers += 1
+            if failed_fast_in_a_row >= len(self.options.endpoints):
+                # Every server refused or dropped us: they may be restarting; wait a little
+                # before the next round.
+                time.sleep(max(0.0, min(0.1, deadline - time.monotonic())))
+
+    def _attempt(self, payload: bytes, timeout_s: float) -> tuple[str, Optional[pb.Response]]:
+        """One attempt: ("answered", the reply), or ("timed out" | "lost the connection" |
+        "refused", None)."""
+        assert self._socket is not None and self._monitor is not None
+        self._next_call += 1
+        call_id = str(self._next_call).encode()
+        self._socket.send_multipart([call_id, payload])
+        poller = zmq.Poller()
+        poller.register(self._socket, zmq.POLLIN)
+        poller.register(self._monitor, zmq.POLLIN)
+        deadline = time.monotonic() + timeout_s
+        while (left_s := deadline - time.monotonic()) > 0:
+            ready = dict(poller.poll(max(1, math.ceil(left_s * 1000))))
+            if self._monitor in ready:
+                event = recv_monitor_message(self._monitor)["event"]
+                self._connected = self._connected or event == zmq.EVENT_CONNECTED
+                self._handshaken = self._handshaken or event == zmq.EVENT_HANDSHAKE_SUCCEEDED
+                # A dropped connection loses the request; a refused one never carried it.
+                if event == zmq.EVENT_DISCONNECTED and self._handshaken:
+                    return "lost the connection", None
+                if event == zmq.EVENT_CONNECT_RETRIED and not self._connected:
+                    return "refused", None
+            if self._socket not in ready:
+                continue
+            frames = self._socket.recv_multipart()
+            if len(frames) != 2 or frames[0] != call_id:
+                continue  # a late reply to an abandoned attempt
+            response = pb.Response()
+            try:
+                response.ParseFromString(frames[1])
+            except Exception as error:  # protobuf raises its DecodeError or a RuntimeWarning
+                raise ProtocolError(
+                    f"{self.current_endpoint}: the reply is not an hscloc Response ({error})"
+                ) from None
+            return "answered", response
+        return "timed out", None
 
     def localize(
         self,
@@ -250,7 +326,7 @@ class Client:
         if not response.HasField(kind):
             if response.status not in (pb.STATUS_UNSPECIFIED, pb.OK):
                 raise ServerError(status_name(response.status), response.error_message)
-            raise ProtocolError(f"{self.options.endpoint}: the reply to {kind} has no {kind}")
+            raise ProtocolError(f"{self.current_endpoint}: the reply to {kind} has no {kind}")
         return response
 
     def localize_batch(

@@ -8,16 +8,25 @@ class HsclocError(Exception):
 
 
 class ServerTimeoutError(HsclocError, TimeoutError):
-    """No reply came within the timeout, on any attempt (each on a fresh socket)."""
+    """No reply came on any attempt (each on a fresh socket, to the next server): every attempt
+    timed out, lost its connection or was refused, within the call's bound of `timeout_s`.
 
-    def __init__(self, endpoint: str, timeout_s: float, attempts: int):
+    Attributes:
+        endpoint: the server (or the servers, comma-separated) tried.
+        timeout_s: the bound that ran out.
+        attempts: how many were made.
+        detail: what became of each attempt.
+    """
+
+    def __init__(self, endpoint: str, timeout_s: float, attempts: int, detail: str = ""):
         super().__init__(
             f"{endpoint}: no reply within {timeout_s:g} s after {attempts} attempt"
-            f"{'' if attempts == 1 else 's'}"
+            f"{'' if attempts == 1 else 's'}" + (f" ({detail})" if detail else "")
         )
         self.endpoint = endpoint
         self.timeout_s = timeout_s
         self.attempts = attempts
+        self.detail = detail
 
 
 class ServerError(HsclocError):

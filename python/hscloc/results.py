@@ -105,6 +105,7 @@ class LocalizationResult:
     failure_reason: str = ""  # why NOT_LOCALIZED, in the server's words
     candidates: list[Candidate] = field(default_factory=list)
     timings: StageTimings = field(default_factory=StageTimings)
+    map_id: str = ""  # the map that answered ("<name>@<manifest hash>")
 
     @property
     def success(self) -> bool:
@@ -123,22 +124,27 @@ class LocalizationResult:
             failure_reason=response.error_message,
             candidates=[Candidate.from_wire(c) for c in response.candidates],
             timings=StageTimings.from_wire(response.timings),
+            map_id=response.map_id,
         )
 
 
 @dataclass(frozen=True)
 class Health:
-    """The server's health: status "OK" while serving, "UNAVAILABLE" while draining."""
+    """The server's health: status "OK" while serving, "UNAVAILABLE" while draining.
+
+    Asked of a broker's admin endpoint, `worker_maps` lists the map each of its workers serves
+    (two ids while a map update rolls over them)."""
 
     status: str
     map_id: str
     uptime_s: float
     queued_requests: int
+    worker_maps: list[str] = field(default_factory=list)
 
     @classmethod
     def from_wire(cls, health: pb.HealthResponse) -> "Health":
         return cls(status_name(health.status), health.map_id, health.uptime_s,
-                   health.queued_requests)
+                   health.queued_requests, [worker.map_id for worker in health.worker_status])
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import threading
 import time
 
 import numpy as np
@@ -38,15 +39,53 @@ def test_bad_arrays_raise_before_sending() -> None:
         assert [call.request.WhichOneof("kind") for call in server.received] == ["health"]
 
 
-def test_a_server_that_is_down_times_out_after_the_retries() -> None:
+def test_a_server_that_is_down_is_tried_until_the_calls_bound() -> None:
     endpoint = free_loopback_endpoint()
     start = time.monotonic()
     with Client(endpoint, timeout_s=0.2, retries=2) as client:
-        with pytest.raises(ServerTimeoutError, match=f"{endpoint}: no reply within 0.2 s after 3 "
-                                                     "attempts") as raised:
+        with pytest.raises(ServerTimeoutError, match=f"{endpoint}: no reply within 0.6 s after "
+                                                     "[0-9]+ attempts") as raised:
             client.health()
-    assert time.monotonic() - start >= 0.6
-    assert isinstance(raised.value, TimeoutError) and raised.value.attempts == 3
+    assert time.monotonic() - start >= 0.55
+    assert isinstance(raised.value, TimeoutError) and f"{endpoint} refused" in raised.value.detail
+
+
+def test_a_silent_server_times_out_after_the_retries() -> None:
+    with FakeServer(lambda index, call: []) as server, \
+            Client(server.endpoint, timeout_s=0.2, retries=2) as client:
+        with pytest.raises(ServerTimeoutError, match="after 3 attempts") as raised:
+            client.health()
+    assert raised.value.detail.count("timed out") == 3
+
+
+def test_a_request_moves_to_the_next_server_when_its_server_dies() -> None:
+    # The first server takes the request and closes without answering: its connection drops.
+    dying = FakeServer(lambda index, call: [])
+    with FakeServer(lambda _, call: health_reply(call, "second")) as second, \
+            Client([dying.endpoint, second.endpoint], timeout_s=30) as client:
+        def kill_when_received() -> None:
+            while not dying.received:
+                time.sleep(0.005)
+            dying.close()
+        killer = threading.Thread(target=kill_when_received)
+        killer.start()
+        start = time.monotonic()
+        assert client.health().map_id == "second"
+        killer.join()
+        assert time.monotonic() - start < 5  # the connection's loss, not the 30 s timeout
+        assert client.failovers == 1 and client.current_endpoint == second.endpoint
+        # Later requests stay with the server that answered.
+        assert client.health().map_id == "second"
+        assert len(second.received) == 2
+
+
+def test_a_reload_is_not_resent_to_another_server() -> None:
+    with FakeServer(lambda index, call: []) as first, FakeServer(lambda _, call: []) as second, \
+            Client([first.endpoint, second.endpoint], timeout_s=0.3, retries=3) as client:
+        with pytest.raises(ServerTimeoutError, match="not resent"):
+            client.call(pb.Request(reload=pb.ReloadRequest()))
+        time.sleep(0.1)
+        assert len(first.received) == 1 and second.received == []
 
 
 def test_each_retry_sends_the_request_again_on_a_fresh_socket() -> None:

@@ -3,6 +3,7 @@ beside the C++ tools: the same queries give the same numbers, bit for bit."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 from pathlib import Path
 
@@ -34,12 +35,14 @@ def test_health_and_info(server: str, city: City) -> None:
     with Client(server) as client:
         health = client.health()
         info = client.info()
-    assert (health.status, health.map_id) == ("OK", "map")
+    # "<directory name>@<manifest hash>"
+    assert health.status == "OK" and re.fullmatch("map@[0-9a-f]{16}", health.map_id)
+    assert info.map_id == health.map_id
     assert health.uptime_s >= 0
     with h5py.File(city.features) as features:
         name = read_query_list(city.day_queries)[0].name
         dimension = read_hloc_features(features, name).descriptors.shape[1]
-    assert (info.map_id, info.descriptor_dim) == ("map", dimension)
+    assert info.descriptor_dim == dimension
     assert info.num_images > 0 and info.num_points > 0 and info.workers == 2
     assert not info.needs_global_descriptor and info.server_version
 
@@ -80,6 +83,7 @@ def test_a_result_holds_pose_inliers_candidates_and_timings(server: str, city: C
                                  query_name=query.name)
         top_2 = client.localize(image.keypoints, image.descriptors, query.camera, top_k=2)
     assert result.success and result.query_name == query.name
+    assert re.fullmatch("map@[0-9a-f]{16}", result.map_id)  # the map that made the pose
     assert np.linalg.norm(result.cam_from_world.qvec) == pytest.approx(1, abs=1e-9)
     assert result.num_inliers >= 12
     best = max((c for c in result.candidates if c.evaluated), key=lambda c: c.num_inliers)
