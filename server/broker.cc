@@ -48,7 +48,11 @@ struct Broker::State {
   std::unique_ptr<CurveAuthenticator> authenticator;
   zmq::socket_t front;
   zmq::socket_t back;
+  // The back's connection events: a worker process that dies closes its connection, and the
+  // broker then asks which worker is gone at once instead of waiting out its heartbeats.
+  zmq::socket_t back_monitor;
   zmq::socket_t admin;
+  std::chrono::steady_clock::time_point probe_until;  // a connection closed: probe until then
   // Routing, touched by the loop's thread only.
   std::deque<Pending> queue;
   std::map<std::string, Worker> workers;
@@ -113,6 +117,16 @@ void Broker::OpenSockets() {
   if (!options_.backend_curve_secret_key.empty()) {
     MakeCurveServer(state_->back, options_.backend_curve_secret_key, kWorkerDomain);
   }
+  // A send to a worker whose connection is gone fails (EHOSTUNREACH) instead of vanishing.
+  state_->back.set(zmq::sockopt::router_mandatory, 1);
+  const std::string monitor_endpoint =
+      fmt::format("inproc://hscloc-broker-back-{}", static_cast<void*>(this));
+  if (zmq_socket_monitor(state_->back.handle(), monitor_endpoint.c_str(), ZMQ_EVENT_DISCONNECTED) !=
+      0) {
+    ThrowInvalidArgument("broker: cannot monitor the workers' connections");
+  }
+  state_->back_monitor = zmq::socket_t(state_->context, zmq::socket_type::pair);
+  state_->back_monitor.connect(monitor_endpoint);
   BindOrThrow(state_->front, options_.front, "--bind");
   BindOrThrow(state_->back, options_.back, "--backend");
   if (options_.admin_bind.empty()) return;
@@ -146,6 +160,7 @@ void Broker::Stop() {
   if (state_ == nullptr || stopping_.exchange(true)) return;
   if (thread_.joinable()) thread_.join();
   state_->front.close();
+  state_->back_monitor.close();
   state_->back.close();
   state_->admin.close();
   state_->authenticator.reset();
@@ -190,20 +205,48 @@ void Broker::Loop() {
   Clock::time_point next_heartbeat = Clock::now() + options_.heartbeat_interval;
   while (!stopping_) {
     std::vector<zmq::pollitem_t> items = {{state_->back.handle(), 0, ZMQ_POLLIN, 0},
-                                          {state_->front.handle(), 0, ZMQ_POLLIN, 0}};
+                                          {state_->front.handle(), 0, ZMQ_POLLIN, 0},
+                                          {state_->back_monitor.handle(), 0, ZMQ_POLLIN, 0}};
     if (!admin_endpoint_.empty()) items.push_back({state_->admin.handle(), 0, ZMQ_POLLIN, 0});
-    zmq::poll(items, options_.heartbeat_interval);
+    const bool probing = Clock::now() < state_->probe_until;
+    zmq::poll(items, probing ? kProbeInterval : options_.heartbeat_interval);
     const Clock::time_point now = Clock::now();
-    if (items.size() > 2 && (items[2].revents & ZMQ_POLLIN)) AnswerAdmin();
+    if (items.size() > 3 && (items[3].revents & ZMQ_POLLIN)) AnswerAdmin();
+    if (items[2].revents & ZMQ_POLLIN) NoteClosedConnection(now);
     if (items[0].revents & ZMQ_POLLIN) ReceiveFromWorker(now);
     if (items[1].revents & ZMQ_POLLIN) ReceiveFromClient();
+    if (probing || now >= next_heartbeat) {
+      // The heartbeat is also the probe: a send to a worker whose connection is gone fails.
+      for (const auto& [id, worker] : state_->workers) SendToWorker({id, kHeartbeat});
+      if (now >= next_heartbeat) next_heartbeat = now + options_.heartbeat_interval;
+    }
     RequeueSilentWorkers(now);
     DispatchWaiting();
     PublishGauges();
-    if (now >= next_heartbeat) {
-      for (const auto& [id, worker] : state_->workers) SendFrames(state_->back, {id, kHeartbeat});
-      next_heartbeat = now + options_.heartbeat_interval;
+  }
+}
+
+// A connection on the back closed; which worker's it was shows when a send to it fails, once
+// ZeroMQ has torn down its pipe, so the workers are probed for a while.
+void Broker::NoteClosedConnection(Clock::time_point now) {
+  std::vector<zmq::message_t> event;
+  if (!zmq::recv_multipart(state_->back_monitor, std::back_inserter(event))) return;
+  state_->probe_until = now + options_.heartbeat_interval;
+}
+
+bool Broker::SendToWorker(const std::vector<std::string>& frames) {
+  try {
+    SendFrames(state_->back, frames);
+    return true;
+  } catch (const zmq::error_t& error) {
+    if (error.num() != EHOSTUNREACH) throw;
+    // Its connection is gone: dropped in this round, its requests handed to others.
+    auto worker = state_->workers.find(frames[0]);
+    if (worker != state_->workers.end()) {
+      worker->second.expiry = Clock::time_point::min();
+      spdlog::warn("broker: a worker's connection closed");
     }
+    return false;
   }
 }
 
@@ -266,7 +309,7 @@ void Broker::ReceiveFromClient() {
 // Workers whose heartbeats stopped: their requests go back to the front of the queue.
 void Broker::RequeueSilentWorkers(Clock::time_point now) {
   for (auto worker = state_->workers.begin(); worker != state_->workers.end();) {
-    if (worker->second.expiry >= now) {
+    if (worker->second.expiry >= now && worker->second.slots > 0) {
       ++worker;
       continue;
     }
@@ -303,12 +346,17 @@ void Broker::DispatchWaiting() {
       }
     }
     if (best == workers.end()) return;
+    std::vector<std::string> frames = {
+        best->first, state_->incarnation + std::to_string(state_->queue.front().sequence)};
+    frames.insert(frames.end(), state_->queue.front().frames.begin(),
+                  state_->queue.front().frames.end());
+    if (!SendToWorker(frames)) {
+      // Gone: no more slots there; the request waits for the next worker.
+      best->second.slots = 0;
+      continue;
+    }
     Pending pending = std::move(state_->queue.front());
     state_->queue.pop_front();
-    std::vector<std::string> frames = {best->first,
-                                       state_->incarnation + std::to_string(pending.sequence)};
-    frames.insert(frames.end(), pending.frames.begin(), pending.frames.end());
-    SendFrames(state_->back, frames);
     ++best->second.busy;
     state_->in_flight.emplace(pending.sequence, std::make_pair(std::move(pending), best->first));
   }

@@ -2,8 +2,8 @@
 // to its front ROUTER exactly as to a single server; worker processes (`hscloc serve --connect`)
 // connect to its back ROUTER, announce how many requests they take at once, and exchange
 // heartbeats with it. Requests wait in a bounded queue until a worker has a free slot; a worker
-// that misses its heartbeats is dropped and the requests it held go to another worker, so a
-// crashed worker loses no request.
+// whose connection closes, or that misses its heartbeats, is dropped and the requests it held go
+// to another worker, so a crashed worker loses no request.
 //
 // With CURVE the front admits clients as a single server does (the server's key, an allow-list of
 // client keys) and the back admits only the workers whose keys are on its own allow-list, so no
@@ -72,13 +72,18 @@ class Broker {
   struct State;
 
   using Clock = std::chrono::steady_clock;
+  static constexpr std::chrono::milliseconds kProbeInterval{20};
 
   void OpenSockets();
   // Polls the sockets until Stop(): each round receives, requeues the requests of silent
   // workers, dispatches, publishes the gauges and sends heartbeats.
   void Loop();
   void ReceiveFromWorker(Clock::time_point now);  // a heartbeat or a reply
-  void ReceiveFromClient();                       // queued, or refused when the queue is full
+  void NoteClosedConnection(Clock::time_point now);
+  // Sends to the worker the first frame names; false (and the worker dropped in this round) when
+  // its connection is gone.
+  bool SendToWorker(const std::vector<std::string>& frames);
+  void ReceiveFromClient();  // queued, or refused when the queue is full
   void RequeueSilentWorkers(Clock::time_point now);
   void DispatchWaiting();
   void PublishGauges();
