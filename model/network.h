@@ -141,6 +141,11 @@ struct PointPredictions {
   Eigen::Matrix<uint8_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> labels;  // K*N x levels
   // Wall time of each level of the forward pass, coarsest first (where the time goes).
   std::vector<double> level_milliseconds;
+  // The floating-point operations each level's matrix products performed (2 per multiply-add),
+  // counting the work done: the modulation once per run of rows that share it, the output only
+  // over the children or points a row scores. The CPU path fills it; the honest floor of the
+  // pass is their sum at the machine's peak rate.
+  std::vector<double> level_flops;
 };
 
 class Network {

@@ -4,6 +4,7 @@
 // intermediate.
 #include <Eigen/Core>
 #include <algorithm>
+#include <atomic>
 #include <functional>
 #include <limits>
 #include <memory>
@@ -122,6 +123,7 @@ class CpuForwardPass {
         SkipLevel(depth);
       }
       result_.level_milliseconds.push_back(level_timer.ElapsedMilliseconds());
+      result_.level_flops.push_back(2.0 * static_cast<double>(multiply_adds_.exchange(0)));
     }
     ResolvePointIndices(tree_, result_);
     return std::move(result_);
@@ -161,6 +163,8 @@ class CpuForwardPass {
       current_scale_ = weights.input_scale;
     }
     const int64_t descriptor_dim = shape_.descriptor_dim;
+    multiply_adds_ += num_descriptors_ * (descriptor_dim * trunk_channels_ +
+                                          trunk_channels_ * channels_ + channels_ * channels_);
     ForEachRowBlock(num_descriptors_, [&](int64_t begin, int64_t end) {
       const int64_t block_rows = end - begin;
       thread_local BlockScratch scratch;
@@ -225,6 +229,7 @@ class CpuForwardPass {
       scratch.run_of_row[i - begin] = static_cast<int32_t>(runs - 1);
       scratch.descriptor_of_row[i - begin] = row % num_descriptors_;
     }
+    multiply_adds_ += runs * (e * e + layers * 2 * e * channels_);
     dense_kernels::EluInPlace(scratch.embedding.data(), runs * e);
     dense_kernels::Linear(scratch.embedding.data(), runs, e, weights.generator_weight,
                           weights.generator_bias, e, true, scratch.generator.data());
@@ -242,6 +247,7 @@ class CpuForwardPass {
   void ModulateFeatures(const LevelWeights& weights, int layers, int64_t begin, int64_t end,
                         BlockScratch& scratch) {
     const int64_t block_rows = end - begin;
+    multiply_adds_ += block_rows * (layers - 1) * channels_ * channels_;
     dense_kernels::ModulateElu(descriptor_features_.data(), scratch.descriptor_of_row.data(),
                                scratch.gammas[0].data(), scratch.betas[0].data(),
                                scratch.run_of_row.data(), block_rows, channels_,
@@ -263,12 +269,14 @@ class CpuForwardPass {
     const int64_t branching = shape_.branching;
     const int64_t block_rows = end - begin;
     if (weights.node_output_dim == 0) {
+      multiply_adds_ += block_rows * channels_ * branching;
       dense_kernels::Linear(scratch.features.data(), block_rows, channels_, weights.output_weight,
                             weights.output_bias, branching, false, scratch.logits.data());
       return;
     }
     // Each run shares its parent: its children's rows are contiguous in the node table.
     const int64_t row_width = node_output_dim_ + 1;
+    multiply_adds_ += block_rows * channels_ * node_output_dim_;
     dense_kernels::Linear(scratch.features.data(), block_rows, channels_, weights.projection_weight,
                           weights.projection_bias, node_output_dim_, false,
                           scratch.projected.data());
@@ -286,6 +294,7 @@ class CpuForwardPass {
           parent < 0 ? 0
                      : tree_.FirstChild(static_cast<uint32_t>(parent)) - weights.node_rows_first;
       float* logits = scratch.logits.data() + (i - begin) * branching;
+      multiply_adds_ += (run_end - i) * count * node_output_dim_;
       dense_kernels::NodeLogits(scratch.projected.data() + (i - begin) * node_output_dim_,
                                 run_end - i, node_output_dim_,
                                 weights.node_rows + first * row_width, count, branching, logits);
@@ -351,6 +360,7 @@ class CpuForwardPass {
           }
         }
         scratch.segment_starts.push_back(static_cast<uint32_t>(count));
+        multiply_adds_ += run_rows * static_cast<int64_t>(count) * node_output_dim_;
         dense_kernels::NodeLogits(scratch.projected.data() + (i - begin) * node_output_dim_,
                                   run_rows, node_output_dim_, rows, static_cast<int64_t>(count),
                                   static_cast<int64_t>(count), scratch.scores.data());
@@ -412,6 +422,8 @@ class CpuForwardPass {
   std::vector<float> descriptor_features_;
   // (image and label prefix, row), sorted.
   std::vector<std::pair<int64_t, int64_t>> keyed_rows_;
+  // The level's multiply-adds so far, from every compute thread.
+  std::atomic<int64_t> multiply_adds_{0};
 };
 
 }  // namespace

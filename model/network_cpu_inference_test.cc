@@ -2,6 +2,8 @@
 // weights must give the same labels and confidences.
 #include <gtest/gtest.h>
 
+#include <numeric>
+
 #include "model/network.h"
 #include "model/network_module.h"
 #include "model/network_test_support.h"
@@ -115,6 +117,51 @@ TEST(NetworkCpuInferenceTest, LevelsWithoutChoiceTakeTheOnlyChildWithCertainty) 
   ASSERT_TRUE(full.tree.LevelHasChoice(2));
   EXPECT_NEAR(network.PredictFlops(200, 3, tree),
               2.0 / 3.0 * network.PredictFlops(200, 3, full.tree), 1.0);
+}
+
+TEST(NetworkCpuInferenceTest, CountsTheWorkItDidNeverMoreThanTheShapesCount) {
+  const RandomMap fixture = MakeRandomMap(11);
+  const int64_t n = 700;
+  const std::vector<uint32_t> images = {1, 2, 3, 5, 8};
+  const DescriptorMatrix descriptors = RandomDescriptors(n, fixture.shape.descriptor_dim, 6);
+  NetworkOptions shared_output = testing_support::SmallOptions();
+  shared_output.node_output_dim = 0;
+  const Network network(fixture.shape, shared_output, 7);
+  const PointPredictions predictions = network.Predict(descriptors, images, fixture.tree);
+  ASSERT_EQ(predictions.level_flops.size(), static_cast<size_t>(fixture.shape.levels));
+  const double d = fixture.shape.descriptor_dim, c = shared_output.channels;
+  const double e = shared_output.embedding_dim, h = shared_output.trunk_channels;
+  const double layers = shared_output.conditioned_layers;
+  const double rows = static_cast<double>(n * images.size());
+  // Everything but the modulation's generator is done per descriptor or per row, as counted from
+  // the shapes; the generator runs once per run of rows sharing an image and label prefix: at
+  // least once per image, and (rows sorted by that prefix) far fewer times than there are rows.
+  const double per_pass = 2 * (n * (d * h + h * c + c * c) + rows * (layers - 1) * c * c +
+                               rows * c * fixture.shape.branching);
+  const double generator = 2 * (e * e + 2 * layers * e * c);
+  double total = 0;
+  for (int level = 0; level < fixture.shape.levels; ++level) {
+    SCOPED_TRACE(testing::Message() << "level " << level);
+    const double flops = predictions.level_flops[level];
+    if (!fixture.tree.LevelHasChoice(level)) {
+      EXPECT_EQ(flops, 0);
+      continue;
+    }
+    const double runs = (flops - per_pass) / generator;
+    EXPECT_DOUBLE_EQ(runs, std::round(runs));
+    EXPECT_GE(runs, static_cast<double>(images.size()));
+    EXPECT_LT(runs, rows / 4);
+    total += flops;
+  }
+  const int64_t k = static_cast<int64_t>(images.size());
+  EXPECT_LT(total, network.PredictFlops(n, k, fixture.tree));
+  // Node output rows score a row against its parent's children only, fewer than the branching
+  // the shapes count.
+  const Network node_rows(fixture.shape, testing_support::SmallOptions(), 7);
+  const std::vector<double> node_flops =
+      node_rows.Predict(descriptors, images, fixture.tree).level_flops;
+  EXPECT_LT(std::accumulate(node_flops.begin(), node_flops.end(), 0.0),
+            node_rows.PredictFlops(n, k, fixture.tree));
 }
 
 TEST(NetworkCpuInferenceTest, ThreadCountDoesNotChangeResults) {
