@@ -16,7 +16,14 @@ front=$((20000 + $$ % 20000)) back=$((front + 1)) admin=$((front + 2))
 front_b=$((front + 5)) back_b=$((front + 6)) admin_b=$((front + 7))
 pids=()
 cleanup() {
+  local status=$?
   for pid in "${pids[@]}"; do kill -9 "$pid" 2>/dev/null || true; done
+  if [ "$status" -ne 0 ]; then
+    # What each process said last, for the failure's cause.
+    for log in "$work"/broker*.log "$work"/worker*.log; do
+      [ -f "$log" ] && { echo "== $(basename "$log") (last lines)"; grep -v '\] \[info\] request ' "$log" | tail -n 15; }
+    done
+  fi
   rm -rf "$work"
 }
 trap cleanup EXIT
@@ -71,7 +78,7 @@ for port in "$admin" "$admin_b"; do
 done
 
 client=("$bin/hscloc-client" --server "tcp://127.0.0.1:$front" --server "tcp://127.0.0.1:$front_b"
-        --timeout-ms 120000 --retries 0
+        --timeout-ms 30000 --retries 2
         --curve-server-key "$keys/broker.pub" --curve-secret-key "$keys/client.key")
 "${client[@]}" health > /dev/null
 echo "smoke: two brokers and two workers up and ready, CURVE on"

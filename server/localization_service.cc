@@ -269,7 +269,13 @@ void LocalizationService::ForwardReply() {
   frames.erase(frames.begin());
   // Counted first, as in Reply.
   ++answered_;
-  SendFrames(SocketFor(static_cast<Origin>(route.origin), route.socket), frames);
+  const Origin origin = static_cast<Origin>(route.origin);
+  if (!SendFrames(SocketFor(origin, route.socket), frames) && origin == Origin::kPublic &&
+      !options_.connect.empty()) {
+    // The broker's connection is down (it died, or is reconnecting): its client resends.
+    spdlog::warn("a reply to the broker at {} was dropped: no connection to it",
+                 options_.connect[route.socket]);
+  }
 }
 
 // Queues a reply on the replies channel (from a worker or the reload thread).

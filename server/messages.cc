@@ -36,11 +36,16 @@ wire::Response RefusalFor(const wire::Request& request, wire::Status status,
   return response;
 }
 
-void SendFrames(zmq::socket_t& socket, std::vector<zmq::message_t>& frames) {
+bool SendFrames(zmq::socket_t& socket, std::vector<zmq::message_t>& frames) {
+  bool sent = true;
   for (size_t i = 0; i < frames.size(); ++i) {
-    socket.send(frames[i],
-                i + 1 < frames.size() ? zmq::send_flags::sndmore : zmq::send_flags::none);
+    sent = socket
+               .send(frames[i],
+                     i + 1 < frames.size() ? zmq::send_flags::sndmore : zmq::send_flags::none)
+               .has_value() &&
+           sent;
   }
+  return sent;
 }
 
 void SendFrames(zmq::socket_t& socket, const std::vector<std::string>& frames) {

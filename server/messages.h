@@ -19,8 +19,9 @@ wire::Response ErrorResponse(wire::Status status, const std::string& message);
 wire::Response RefusalFor(const wire::Request& request, wire::Status status,
                           const std::string& message);
 
-// Sends `frames` as one multipart message (the frames are consumed).
-void SendFrames(zmq::socket_t& socket, std::vector<zmq::message_t>& frames);
+// Sends `frames` as one multipart message (the frames are consumed); false when the socket took
+// none of it (a non-blocking send with nowhere to queue).
+bool SendFrames(zmq::socket_t& socket, std::vector<zmq::message_t>& frames);
 void SendFrames(zmq::socket_t& socket, const std::vector<std::string>& frames);
 // Envelope frames, then `payload`.
 void SendReply(zmq::socket_t& socket, const std::vector<zmq::message_t>& envelope,
