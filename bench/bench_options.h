@@ -13,6 +13,10 @@ struct BenchOptions {
   std::string scale_only;       // only measure this preset's scale row, into the existing JSON
   bool real_sets_only = false;  // only measure the real sets' peers rows, into the existing JSON
   double train_minutes = 0;     // training budget of --scale-only (0: the full run's)
+  // The real sets' training budget in minutes (0: `hscloc train`'s own for the map); a row
+  // measured with one is named after it, beside the default's.
+  double real_train_minutes = 0;
+  int seeds = 5;  // the real sets' training seeds, 1 .. seeds
   std::filesystem::path work = "bench-work";
   std::filesystem::path data = HSCLOC_DEFAULT_DATA_DIR;
   // The sets that ship with the project (kitti-07), read where `data` lacks them.

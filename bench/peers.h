@@ -29,8 +29,9 @@ nlohmann::json ComparePeers(const std::string& name, const std::filesystem::path
                             const std::vector<NamedPose>& ground_truth,
                             const nlohmann::json& colmap);
 enum class LocalFeature { kSift, kXFeat };
-// A real set of the data directory: build-map, train for `train_minutes` (nullopt: `hscloc
-// train`'s own budget for the map, what a user gets), then ComparePeers.
+// A real set of the data directory: build-map, then for each training seed 1 .. options.seeds
+// train a copy for `train_minutes` (nullopt: `hscloc train`'s own budget for the map, what a user
+// gets) and ComparePeers on it. The row is seed 1's, with every seed's matchers under "seeds".
 // SIFT: the set's own database and map, and COLMAP's registration beside; XFeat: `hscloc extract`
 // on its photos and `hscloc triangulate` from its map's poses first (named "SET, XFeat").
 nlohmann::json RealSetPeers(const BenchOptions& options, const std::string& set,
