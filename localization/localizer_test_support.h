@@ -79,6 +79,7 @@ struct TrainedRealMap {
   std::shared_ptr<const Network> network;
   int64_t iterations = 0;
   double train_seconds = 0;
+  double held_out_accuracy = -1;  // the kept network's, -1 when never evaluated
 };
 
 inline TrainedRealMap BuildAndTrainRealMap(const std::filesystem::path& model,
@@ -91,12 +92,14 @@ inline TrainedRealMap BuildAndTrainRealMap(const std::filesystem::path& model,
   BuildMap({model, features, std::nullopt}, build_options, bundle);
   TrainedRealMap trained;
   trained.map = LocalizationMap::Load(bundle, {.load_observations = true});
-  training.network = DefaultNetworkOptions(trained.map->scene().NumPoints());
+  training.network = DefaultNetworkOptions(trained.map->scene().NumPoints(),
+                                           static_cast<int>(trained.map->scene().Dimension()));
   training.show_progress = false;
   TrainingResult result = TrainNetwork(trained.map->scene(), trained.map->label_tree(), training);
   trained.network = std::make_shared<const Network>(std::move(result.network));
   trained.iterations = result.iterations;
   trained.train_seconds = result.seconds;
+  trained.held_out_accuracy = result.best_held_out_accuracy;
   return trained;
 }
 

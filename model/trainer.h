@@ -154,9 +154,13 @@ struct TrainingResult {
 double DefaultEpochs(size_t num_training_observations, const NetworkOptions& network);
 // Maps with fewer points keep the paper's shared output layer (node_output_dim = 0).
 inline constexpr size_t kMinPointsForNodeOutputRows = 10000;
-// Widths for a map of this many points: from kMinPointsForNodeOutputRows points on, pooled point
-// rows (docs/decisions.md), narrowing on large maps so that the bundle stays small.
-NetworkOptions DefaultNetworkOptions(size_t num_points);
+// The width C = H of the default network on maps below kMinPointsForNodeOutputRows points.
+inline constexpr int kSmallMapChannels = 128;
+// Widths for a map of this many points and descriptors of this dimension: below
+// kMinPointsForNodeOutputRows points the descriptor shortcut at C = H = kSmallMapChannels (a few
+// views per point: the class means to start from, a small correction to learn); from there on
+// pooled point rows, narrowing on large maps so that the bundle stays small (docs/decisions.md).
+NetworkOptions DefaultNetworkOptions(size_t num_points, int descriptor_dim);
 // The file a held-out check at `iteration` writes into TrainerOptions::snapshot_dir; names sort by
 // iteration.
 std::string SnapshotFileName(int64_t iteration);

@@ -125,18 +125,27 @@ TEST(TrainerOptionsTest, ChecksNameTheField) {
   expect_named([](TrainerOptions& o) { o.evaluations = -1; }, "evaluations");
   expect_named([](TrainerOptions& o) { o.evaluation_observations = 0; }, "evaluation_observations");
   expect_named([](TrainerOptions& o) { o.network.node_output_dim = -2; }, "node_output_dim");
-  // Larger maps get fewer passes, and narrower node rows.
-  const NetworkOptions pooled = DefaultNetworkOptions(kMinPointsForNodeOutputRows);
+  // Larger maps get fewer passes, and narrower point rows.
+  const NetworkOptions pooled = DefaultNetworkOptions(kMinPointsForNodeOutputRows, 256);
   EXPECT_TRUE(pooled.pooled_point_rows);
-  EXPECT_FALSE(DefaultNetworkOptions(kMinPointsForNodeOutputRows - 1).pooled_point_rows);
+  EXPECT_FALSE(pooled.descriptor_shortcut);
+  EXPECT_EQ(pooled.channels, NetworkOptions().channels);
   EXPECT_GT(DefaultEpochs(20000, NetworkOptions{}), DefaultEpochs(2000000, NetworkOptions{}));
   EXPECT_LT(DefaultEpochs(600000, pooled), DefaultEpochs(600000, NetworkOptions{}));
-  EXPECT_GE(DefaultNetworkOptions(100000).node_output_dim,
-            DefaultNetworkOptions(2000000).node_output_dim);
-  // Small maps keep the shared output layer; from the threshold on, every node has its row.
-  EXPECT_EQ(DefaultNetworkOptions(kMinPointsForNodeOutputRows - 1).node_output_dim, 0);
-  EXPECT_GT(DefaultNetworkOptions(kMinPointsForNodeOutputRows).node_output_dim, 0);
-  DefaultNetworkOptions(532).Check();
+  EXPECT_GE(DefaultNetworkOptions(100000, 256).node_output_dim,
+            DefaultNetworkOptions(2000000, 256).node_output_dim);
+  EXPECT_LT(DefaultNetworkOptions(100000, 256).node_output_dim, 256);
+  // Small maps start from their points' mean descriptors: the shortcut at the descriptor's width,
+  // on a narrow network.
+  for (const int dim : {64, 128, 256}) {
+    const NetworkOptions small = DefaultNetworkOptions(kMinPointsForNodeOutputRows - 1, dim);
+    EXPECT_TRUE(small.descriptor_shortcut);
+    EXPECT_TRUE(small.pooled_point_rows);
+    EXPECT_EQ(small.node_output_dim, dim);
+    EXPECT_LT(small.channels, NetworkOptions().channels);
+    EXPECT_LT(small.trunk_channels, NetworkOptions().trunk_channels);
+    small.Check();
+  }
 }
 
 TEST(TrainerTest, HeldOutSplitIsDeterministicAndNearTheFraction) {

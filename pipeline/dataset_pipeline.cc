@@ -219,7 +219,8 @@ std::string Train(const fs::path& map_dir, const fs::path& checkpoint,
                   const PipelineOptions& options) {
   const auto map = LocalizationMap::Load(map_dir, {.load_observations = true});
   TrainerOptions training;
-  training.network = DefaultNetworkOptions(map->scene().NumPoints());
+  training.network =
+      DefaultNetworkOptions(map->scene().NumPoints(), static_cast<int>(map->scene().Dimension()));
   training.max_iterations = options.max_iterations;
   training.max_minutes = options.max_minutes;
   training.seed = options.seed;

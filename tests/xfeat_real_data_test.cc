@@ -5,12 +5,15 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <iostream>
 #include <map>
 
 #include "features/image_extraction.h"
 #include "localization/localizer.h"
 #include "localization/localizer_test_support.h"
+#include "model/trainer.h"
 #include "scene/feature_io.h"
 #include "triangulation/map_triangulation.h"
 #include "util/testing.h"
@@ -28,7 +31,21 @@ struct QueryCounts {
 };
 using CountsPerMatcher = std::map<Matcher, QueryCounts>;
 
-CountsPerMatcher LocalizeWithXFeat(const fs::path& data, const fs::path& weights) {
+// One training seed's network: its queries per matcher (the nearest-neighbour baseline retrieves
+// through the network's votes when the global descriptor fails, so it is counted per seed too),
+// and its held-out point accuracy beside the nearest-class-mean matcher's on the same observations.
+struct SeedOutcome {
+  uint64_t seed = 0;
+  CountsPerMatcher counts;
+  double held_out_accuracy = 0;
+  double class_mean_accuracy = 0;
+  size_t num_held_out = 0;
+};
+
+// XFeat extracted from the set's photos and its map triangulated from the set's poses, once; then
+// `hscloc train`'s own network and budget for the map with each seed.
+std::vector<SeedOutcome> LocalizeWithXFeat(const fs::path& data, const fs::path& weights,
+                                           const std::vector<uint64_t>& seeds) {
   testing::TempDir temp;
   Timer step;
   ImageExtractionOptions extraction;
@@ -46,63 +63,85 @@ CountsPerMatcher LocalizeWithXFeat(const fs::path& data, const fs::path& weights
   const MapTriangulationSummary triangulated =
       TriangulateMap({data / "map", features, data / "images"}, triangulation, temp / "model");
   const double triangulate_s = step.ElapsedSeconds();
-
-  // Trained as `hscloc train` trains without options: its budget for the map, 5 % held out.
-  const TrainedRealMap trained =
-      BuildAndTrainRealMap(temp / "model", features, temp / "map", TrainerOptions());
-  const Localizer localizer(trained.map, trained.network);
-
   std::cout << fmt::format(
       "{}: XFeat extracted in {:.1f} s; {} pairs ({} verified), {} verified matches; {} points, "
-      "mean track length {:.2f}, mean reprojection error {:.2f} px, triangulated in {:.1f} s; "
-      "{} iterations in {:.1f} s\n",
+      "mean track length {:.2f}, mean reprojection error {:.2f} px, triangulated in {:.1f} s\n",
       data.filename().string(), extract_s, triangulated.num_pairs, triangulated.num_verified_pairs,
       triangulated.num_verified_matches, triangulated.num_points3D, triangulated.mean_track_length,
-      triangulated.mean_reprojection_error_px, triangulate_s, trained.iterations,
-      trained.train_seconds);
+      triangulated.mean_reprojection_error_px, triangulate_s);
 
   const auto reader = OpenH5Features(features);
   const QuerySet set =
       ReadQuerySet(data / "queries_with_intrinsics.txt", *reader, data / "queries_gt.txt");
-  CountsPerMatcher counts;
-  for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
-    for (const QueryPoseError& error : LocalizeAndPrint(localizer, matcher, set).accuracy.errors) {
-      counts[matcher].fine += error.position <= 0.25 && error.rotation_deg <= 2.0;
-      counts[matcher].medium += error.position <= 0.5 && error.rotation_deg <= 5.0;
+  std::vector<SeedOutcome> outcomes;
+  for (const uint64_t seed : seeds) {
+    TrainerOptions training;  // as `hscloc train` trains without options: 5 % held out
+    training.seed = seed;
+    const TrainedRealMap trained = BuildAndTrainRealMap(
+        temp / "model", features, temp / fmt::format("map-seed{}", seed), training);
+    const Localizer localizer(trained.map, trained.network);
+    const std::vector<uint32_t> held_out =
+        HeldOutObservations(trained.map->scene(), training.holdout_fraction, training.holdout_seed);
+    SeedOutcome outcome{seed, {}, trained.held_out_accuracy, 0, held_out.size()};
+    outcome.class_mean_accuracy =
+        EvaluateNearestClassMean(trained.map->scene(), trained.map->label_tree(),
+                                 trained.map->visibility(), held_out)
+            .leaf_accuracy;
+    std::cout << fmt::format(
+        "seed {}: {} iterations in {:.1f} s; held-out point accuracy {:.1f} %, class means "
+        "{:.1f} %\n",
+        seed, trained.iterations, trained.train_seconds, 100 * outcome.held_out_accuracy,
+        100 * outcome.class_mean_accuracy);
+    for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
+      for (const QueryPoseError& error :
+           LocalizeAndPrint(localizer, matcher, set).accuracy.errors) {
+        outcome.counts[matcher].fine += error.position <= 0.25 && error.rotation_deg <= 2.0;
+        outcome.counts[matcher].medium += error.position <= 0.5 && error.rotation_deg <= 5.0;
+      }
     }
+    outcomes.push_back(outcome);
   }
-  return counts;
+  return outcomes;
 }
 
-// The set's queries within (0.25 m, 2 deg) with the network and with the baseline: at least
-// these many; and every query within (0.5 m, 5 deg) with both. Skips without the set, XFeat's
-// weights or COLMAP.
-void ExpectQueries(const std::string& set, int network_fine, int nearest_neighbor_fine) {
+// What holds for every one of three training seeds, with margin: the set's queries within (0.25
+// m, 2 deg) with the network and with the baseline, at least these many; every query within (0.5
+// m, 5 deg) with both; and the network's held-out point accuracy no lower than the
+// nearest-class-mean matcher's beyond two standard errors of the held-out sample: the network
+// starts as the class means, and the trainer returns to its best check only for a drop larger than
+// that. Skips without the set, XFeat's weights or COLMAP.
+void ExpectQueriesOverSeeds(const std::string& set, int network_fine, int nearest_neighbor_fine) {
   HSCLOC_REQUIRE_REAL_DATA(data, set);
   HSCLOC_REQUIRE_REAL_DATA(weights, "weights/xfeat");
   HSCLOC_REQUIRE_COLMAP(colmap);
-  CountsPerMatcher counts = LocalizeWithXFeat(data, weights);
   const auto num_queries =
       static_cast<int>(ReadQueryList(data / "queries_with_intrinsics.txt").size());
-  EXPECT_GE(counts[Matcher::kNetwork].fine, network_fine);
-  EXPECT_GE(counts[Matcher::kNearestNeighbor].fine, nearest_neighbor_fine);
-  for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
-    EXPECT_EQ(counts[matcher].medium, num_queries) << MatcherName(matcher);
+  for (const SeedOutcome& outcome : LocalizeWithXFeat(data, weights, {1, 2, 3})) {
+    SCOPED_TRACE(fmt::format("training seed {}", outcome.seed));
+    CountsPerMatcher counts = outcome.counts;
+    EXPECT_GE(counts[Matcher::kNetwork].fine, network_fine);
+    EXPECT_GE(counts[Matcher::kNearestNeighbor].fine, nearest_neighbor_fine);
+    for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
+      EXPECT_EQ(counts[matcher].medium, num_queries) << MatcherName(matcher);
+    }
+    const double p = outcome.class_mean_accuracy;
+    const double standard_error =
+        std::sqrt(p * (1 - p) / static_cast<double>(std::max<size_t>(1, outcome.num_held_out)));
+    EXPECT_GE(outcome.held_out_accuracy, p - 2 * standard_error)
+        << "class means " << p << " on " << outcome.num_held_out << " held-out observations";
   }
 }
 
-// Fountain's two queries come within 2 cm and 0.1 deg (SIFT: 2.5 mm).
-TEST(XFeatRealDataTest, FountainQueriesWithinQuarterMetreAndTwoDegrees) {
-  ExpectQueries("fountain-P11", 2, 2);
-}
+// Fountain's two queries come within 2 cm and 0.1 deg (SIFT: 2.5 mm) with every seed.
+TEST(XFeatRealDataTest, FountainQueriesOverSeeds) { ExpectQueriesOverSeeds("fountain-P11", 2, 2); }
 
 // Lund with XFeat (photos seen at 1024 px through 2 x 2 tiles): the nearest-neighbour baseline
-// localizes all 5 queries within (0.25 m, 2 deg), at most 0.12 m off whatever the network that
-// votes, and so does the network with `hscloc train`'s own budget over training seeds 0 to 3
-// (at most 0.15 m off, the final pose pooled over the candidates that agree). Another CPU trains
-// another network from the same seed: one placed 20.jpg 0.45 m off with the winner's pose alone,
-// so the network is held to 4 of 5 within the bound and all 5 within (0.5 m, 5 deg).
-TEST(XFeatRealDataTest, LundQueries) { ExpectQueries("lund", 4, 5); }
+// localizes all 5 queries within (0.25 m, 2 deg), at most 0.12 m off, and the network all 5 with
+// seeds 1 to 3 on the machine these numbers come from (at most 0.24 m off: 25.jpg, whose pose
+// rests on a narrow cone of far points, is 0.21 to 0.24 m off with most seeds and 0.19 m with
+// COLMAP's own registration). Another CPU sums in another order and trains another network from
+// the same seed, so the network is held to 4 of 5 within the bound and all 5 within (0.5 m, 5 deg).
+TEST(XFeatRealDataTest, LundQueriesOverSeeds) { ExpectQueriesOverSeeds("lund", 4, 5); }
 
 }  // namespace
 }  // namespace hscloc

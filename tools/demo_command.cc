@@ -146,7 +146,8 @@ void TrainDemoNetwork(const DemoArguments& arguments, const fs::path& bundle) {
   const auto map = LocalizationMap::Load(bundle, {.load_observations = true});
   TrainerOptions train_options;
   // The widths `hscloc train` chooses for this map.
-  train_options.network = DefaultNetworkOptions(map->scene().NumPoints());
+  train_options.network =
+      DefaultNetworkOptions(map->scene().NumPoints(), static_cast<int>(map->scene().Dimension()));
   train_options.max_iterations = arguments.iterations;
   train_options.max_minutes = arguments.minutes;
   train_options.holdout_fraction = arguments.real ? 0 : 0.05;

@@ -32,7 +32,9 @@ struct TrainArguments {
   bool no_keep_best = false;
   std::string schedule;
   bool node_output_dim_given = false;
-  std::string output;  // shared, node, pooled; empty: from the map's size
+  bool channels_given = false;
+  bool trunk_channels_given = false;
+  std::string output;  // shared, node, pooled, shortcut; empty: from the map's size
   TrainerOptions options;
 };
 
@@ -88,6 +90,8 @@ void ChooseOutputLayers(const std::string& output, const NetworkOptions& default
   network.descriptor_shortcut = false;
   if (output.empty()) {
     network.pooled_point_rows = defaults.pooled_point_rows && network.node_output_dim > 0;
+    network.descriptor_shortcut =
+        defaults.descriptor_shortcut && network.node_output_dim == descriptor_dim;
   } else if (output == "shared") {
     network.node_output_dim = 0;
     network.pooled_point_rows = false;
@@ -102,8 +106,10 @@ void ChooseOutputLayers(const std::string& output, const NetworkOptions& default
     network.pooled_point_rows = true;
     network.descriptor_shortcut = true;
   } else {
-    if (!node_output_dim_given && network.node_output_dim == 0) {
-      network.node_output_dim = DefaultNetworkOptions(kMinPointsForNodeOutputRows).node_output_dim;
+    // A small map's default rows are the shortcut's, at the descriptor's width.
+    if (!node_output_dim_given && (network.node_output_dim == 0 || defaults.descriptor_shortcut)) {
+      network.node_output_dim =
+          DefaultNetworkOptions(kMinPointsForNodeOutputRows, descriptor_dim).node_output_dim;
     }
     network.pooled_point_rows = output == "pooled";
   }
@@ -134,9 +140,14 @@ int RunTrain(TrainArguments& arguments) {
     options.schedule = LearningRateSchedule::kHalving;
   }
   const int descriptor_dim = static_cast<int>(map->scene().Dimension());
-  const NetworkOptions defaults = DefaultNetworkOptions(map->scene().NumPoints());
+  const NetworkOptions defaults = DefaultNetworkOptions(map->scene().NumPoints(), descriptor_dim);
   if (!arguments.paper && !arguments.node_output_dim_given) {
     options.network.node_output_dim = defaults.node_output_dim;
+  }
+  // The widths follow the map with its default output layers (those they were measured with).
+  if (!arguments.paper && arguments.output.empty()) {
+    if (!arguments.channels_given) options.network.channels = defaults.channels;
+    if (!arguments.trunk_channels_given) options.network.trunk_channels = defaults.trunk_channels;
   }
   if (!arguments.paper) {
     ChooseOutputLayers(arguments.output, defaults, descriptor_dim, arguments.node_output_dim_given,
@@ -244,7 +255,8 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
                    "row per tree node), pooled (a row per point, pooled over each child's points "
                    "the image sees), shortcut (pooled rows at the descriptor's width, started "
                    "at the points' mean descriptors, the descriptor added to the last layer's "
-                   "projection); default from the map's size")
+                   "projection); default from the map's size: shortcut below 10,000 points, pooled "
+                   "from there")
       ->check(CLI::IsMember({"shared", "node", "pooled", "shortcut"}));
   command
       ->add_option("--conditioning", arguments->conditioning,
@@ -284,13 +296,17 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
   command->add_option("--lr", options.learning_rate, "Adam learning rate (the one-cycle's peak)")
       ->capture_default_str();
   command
-      ->add_option("--channels", options.network.channels,
-                   "Width C of each level's conditioned layers")
-      ->capture_default_str();
+      ->add_option(
+          "--channels", options.network.channels,
+          fmt::format("Width C of each level's conditioned layers (default from the "
+                      "map's size: {} below {} points, else {})",
+                      kSmallMapChannels, kMinPointsForNodeOutputRows, NetworkOptions().channels))
+      ->each([arguments](const std::string&) { arguments->channels_given = true; });
   command
       ->add_option("--trunk-channels", options.network.trunk_channels,
-                   "Width H of each level's descriptor trunk (runs once per keypoint)")
-      ->capture_default_str();
+                   fmt::format("Width H of each level's descriptor trunk, run once per keypoint "
+                               "(default as --channels)"))
+      ->each([arguments](const std::string&) { arguments->trunk_channels_given = true; });
   command
       ->add_option("--embedding-dim", options.network.embedding_dim,
                    "Width of the image and label embeddings")
