@@ -26,6 +26,8 @@ enum StreamKey : uint64_t {
   kStreamQueries,
   kStreamPointDescriptor,
   kStreamViewFeatures,
+  kStreamBankTracks,
+  kStreamBankReuse,
 };
 
 // Points are lifted off their surface by this much before the occlusion test so that the facade
@@ -178,11 +180,27 @@ std::string QueryConditionName(QueryCondition condition) {
   return condition == QueryCondition::kDay ? "day" : "night";
 }
 
-SyntheticCity::SyntheticCity(const SyntheticCityOptions& options) : options_(options) {
+SyntheticCity::SyntheticCity(const SyntheticCityOptions& options,
+                             std::shared_ptr<const DescriptorBank> bank)
+    : options_(options), bank_(std::move(bank)) {
+  if (bank_ != nullptr) {
+    if (bank_->NumTracks() == 0) ThrowInvalidArgument("the descriptor bank holds no track");
+    options_.descriptor_dim = static_cast<int>(bank_->dimension());
+    // A seeded shuffle (Fisher-Yates): which tracks neighbours share depends on the seed only.
+    track_order_.resize(bank_->NumTracks());
+    std::iota(track_order_.begin(), track_order_.end(), 0u);
+    Random shuffle(options_.seed, {kStreamBankTracks});
+    for (size_t i = track_order_.size(); i > 1; --i) {
+      std::swap(track_order_[i - 1], track_order_[shuffle.UniformInt(i)]);
+    }
+  }
+  THROW_CHECK_MSG(options_.bank_reuse_noise >= 0, "bank_reuse_noise must be >= 0 (got {})",
+                  options_.bank_reuse_noise);
   options_.Check();
   LayOutBlocksAndPoints();
   AssignRepeatedAppearance();
   PlaceDatabaseViews();
+  if (bank_ != nullptr) ComputeViewingReferences();
   PlaceQueries(QueryCondition::kDay);
   PlaceQueries(QueryCondition::kNight);
 }
@@ -470,23 +488,73 @@ std::vector<uint32_t> SyntheticCity::VisiblePoints(const Camera& camera,
 }
 
 Eigen::VectorXf SyntheticCity::PointDescriptor(uint32_t point_index) const {
+  if (bank_ != nullptr) {
+    return ObservedDescriptorFromBank(
+        point_index, bank_->NearestView(TrackOfPoint(point_index), Eigen::Vector2f::Zero()), false);
+  }
   Random random(options_.seed, {kStreamPointDescriptor, appearance_of_point_[point_index]});
   return RandomUnitVector(random, options_.descriptor_dim);
 }
 
-SyntheticViewFeatures SyntheticCity::MakeViewFeatures(const SyntheticView& view,
-                                                      QueryCondition condition,
-                                                      uint64_t view_key) const {
-  const bool night = condition == QueryCondition::kNight;
-  Random random(options_.seed, {kStreamViewFeatures, view_key});
+void SyntheticCity::ComputeViewingReferences() {
+  std::vector<Eigen::Vector3d> sums(points_.size(), Eigen::Vector3d::Zero());
+  std::vector<size_t> counts(points_.size(), 0);
+  for (const SyntheticView& view : database_views_) {
+    const Eigen::Vector3d center = CameraCenterInWorld(view.cam_from_world);
+    for (const uint32_t p : VisiblePoints(view.camera, view.cam_from_world)) {
+      sums[p] += (center - points_[p]).normalized();
+      ++counts[p];
+    }
+  }
+  viewing_references_.resize(points_.size());
+  viewing_spreads_.resize(points_.size());
+  for (size_t p = 0; p < points_.size(); ++p) {
+    viewing_references_[p] = sums[p].norm() > 1e-9 ? sums[p].normalized() : point_normals_[p];
+    viewing_spreads_[p] = DirectionSpread(sums[p], counts[p]);
+  }
+}
+
+uint32_t SyntheticCity::TrackOfPoint(uint32_t point_index) const {
+  THROW_CHECK_MSG(bank_ != nullptr, "the random appearance has no tracks");
+  return track_order_[appearance_of_point_[point_index] % track_order_.size()];
+}
+
+uint32_t SyntheticCity::BankViewOfPoint(uint32_t point_index,
+                                        const Eigen::Vector3d& camera_center) const {
+  const Eigen::Vector3f local =
+      LocalViewDirection(camera_center - points_[point_index], viewing_references_[point_index],
+                         Eigen::Vector3d::UnitZ());
+  return bank_->NearestView(TrackOfPoint(point_index),
+                            RelativeViewOffset(local, viewing_spreads_[point_index]));
+}
+
+Eigen::VectorXf SyntheticCity::ObservedDescriptorFromBank(uint32_t point_index, uint32_t view,
+                                                          bool night) const {
+  Eigen::VectorXf descriptor =
+      night ? bank_->night().row(view).transpose() : bank_->day().row(view).transpose();
+  // A later use of a track is another point: its own fixed offset from the track's appearance.
+  const uint32_t appearance = appearance_of_point_[point_index];
+  if (appearance >= track_order_.size() && options_.bank_reuse_noise > 0) {
+    Random reuse(options_.seed, {kStreamBankReuse, appearance});
+    const double per_dimension =
+        options_.bank_reuse_noise / std::sqrt(static_cast<double>(descriptor.size()));
+    for (int64_t d = 0; d < descriptor.size(); ++d) descriptor[d] += per_dimension * reuse.Normal();
+    descriptor.normalize();
+  }
+  return descriptor;
+}
+
+std::vector<uint32_t> SyntheticCity::DetectedPoints(const SyntheticView& view, bool night,
+                                                    size_t max_points, Random& random) const {
+  const Eigen::Vector3d center = CameraCenterInWorld(view.cam_from_world);
   std::vector<uint32_t> detected;
   for (const uint32_t p : VisiblePoints(view.camera, view.cam_from_world)) {
-    if (!night || random.Bernoulli(options_.night_detection_rate)) detected.push_back(p);
+    // At night a real view is detected where its keypoint was found again in the night photo.
+    const bool seen =
+        !night || (bank_ != nullptr ? bank_->HasNight(BankViewOfPoint(p, center))
+                                    : random.Bernoulli(options_.night_detection_rate));
+    if (seen) detected.push_back(p);
   }
-  const int max_keypoints = options_.max_keypoints_per_image;
-  const int clutter = std::min(
-      night ? options_.night_clutter_per_image : options_.clutter_per_image, max_keypoints / 4);
-  const size_t max_points = static_cast<size_t>(max_keypoints - clutter);
   if (detected.size() > max_points) {
     // A partial Fisher-Yates shuffle keeps a uniform random subset.
     for (size_t i = 0; i < max_points; ++i) {
@@ -494,6 +562,45 @@ SyntheticViewFeatures SyntheticCity::MakeViewFeatures(const SyntheticView& view,
     }
     detected.resize(max_points);
   }
+  return detected;
+}
+
+Eigen::VectorXf SyntheticCity::ObservedDescriptor(uint32_t p, const Eigen::Vector3d& camera_center,
+                                                  bool night, Random& random) const {
+  if (bank_ != nullptr) {
+    return ObservedDescriptorFromBank(p, BankViewOfPoint(p, camera_center), night);
+  }
+  const int dim = options_.descriptor_dim;
+  const double noise = night ? options_.night_descriptor_noise : options_.day_descriptor_noise;
+  const double noise_per_dimension = noise / std::sqrt(static_cast<double>(dim));
+  Eigen::VectorXf descriptor = PointDescriptor(p);
+  for (int d = 0; d < dim; ++d) descriptor[d] += noise_per_dimension * random.Normal();
+  descriptor.normalize();
+  return descriptor;
+}
+
+Eigen::VectorXf SyntheticCity::ClutterDescriptor(bool night, Random& random) const {
+  if (bank_ == nullptr) return RandomUnitVector(random, options_.descriptor_dim);
+  // Another view of the bank, found again at night for a night view (a few draws; the day
+  // descriptor when none was).
+  uint32_t view = static_cast<uint32_t>(random.UniformInt(bank_->NumViews()));
+  for (int attempt = 0; night && !bank_->HasNight(view) && attempt < 8; ++attempt) {
+    view = static_cast<uint32_t>(random.UniformInt(bank_->NumViews()));
+  }
+  return night && bank_->HasNight(view) ? bank_->night().row(view).transpose()
+                                        : bank_->day().row(view).transpose();
+}
+
+SyntheticViewFeatures SyntheticCity::MakeViewFeatures(const SyntheticView& view,
+                                                      QueryCondition condition,
+                                                      uint64_t view_key) const {
+  const bool night = condition == QueryCondition::kNight;
+  Random random(options_.seed, {kStreamViewFeatures, view_key});
+  const int max_keypoints = options_.max_keypoints_per_image;
+  const int clutter = std::min(
+      night ? options_.night_clutter_per_image : options_.clutter_per_image, max_keypoints / 4);
+  const std::vector<uint32_t> detected =
+      DetectedPoints(view, night, static_cast<size_t>(max_keypoints - clutter), random);
 
   // Detections first, then clutter; a random permutation then mixes them as a detector would.
   const size_t num_keypoints = detected.size() + clutter;
@@ -501,12 +608,10 @@ SyntheticViewFeatures SyntheticCity::MakeViewFeatures(const SyntheticView& view,
   std::copy(detected.begin(), detected.end(), source.begin());
   for (size_t i = num_keypoints; i > 1; --i) std::swap(source[i - 1], source[random.UniformInt(i)]);
 
-  const int dim = options_.descriptor_dim;
-  const double noise = night ? options_.night_descriptor_noise : options_.day_descriptor_noise;
-  const double noise_per_dimension = noise / std::sqrt(static_cast<double>(dim));
+  const Eigen::Vector3d center = CameraCenterInWorld(view.cam_from_world);
   SyntheticViewFeatures result;
   result.features.keypoints.resize(num_keypoints, 2);
-  result.features.descriptors.resize(num_keypoints, dim);
+  result.features.descriptors.resize(num_keypoints, options_.descriptor_dim);
   result.point_of_keypoint = source;
   for (size_t k = 0; k < num_keypoints; ++k) {
     Eigen::Vector2d pixel;
@@ -515,13 +620,11 @@ SyntheticViewFeatures SyntheticCity::MakeViewFeatures(const SyntheticView& view,
       const auto p = static_cast<uint32_t>(source[k]);
       pixel = view.camera.ImgFromPointInCam(view.cam_from_world * points_[p]);
       pixel += options_.keypoint_noise_px * Eigen::Vector2d(random.Normal(), random.Normal());
-      descriptor = PointDescriptor(p);
-      for (int d = 0; d < dim; ++d) descriptor[d] += noise_per_dimension * random.Normal();
-      descriptor.normalize();
+      descriptor = ObservedDescriptor(p, center, night, random);
     } else {
       pixel = Eigen::Vector2d(random.Uniform(0, view.camera.width),
                               random.Uniform(0, view.camera.height));
-      descriptor = RandomUnitVector(random, dim);
+      descriptor = ClutterDescriptor(night, random);
     }
     pixel.x() = std::clamp(pixel.x(), 0.0, static_cast<double>(view.camera.width));
     pixel.y() = std::clamp(pixel.y(), 0.0, static_cast<double>(view.camera.height));

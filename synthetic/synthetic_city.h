@@ -10,11 +10,13 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "geometry/camera.h"
 #include "geometry/rigid3d.h"
+#include "scene/descriptor_bank.h"
 #include "scene/features.h"
 
 namespace hscloc {
@@ -59,6 +61,9 @@ struct SyntheticCityOptions {
   double repeated_fraction = 0.2;  // points that copy the descriptor of a point on another building
   double day_descriptor_noise = 0.35;  // norm of the noise added to a unit descriptor
   int clutter_per_image = 150;         // detections of no 3D point
+  // With a descriptor bank (real appearance): the norm of the noise that tells a track's second
+  // and later uses apart (0: copies alike), fixed per point that uses it.
+  double bank_reuse_noise = 0.0;
 
   // --- Queries (held out: not database images).
   int num_day_queries = 50;
@@ -100,10 +105,19 @@ struct SyntheticViewFeatures {
 // The city's geometry, cameras and appearance model. Features are generated on demand from
 // counter-based random streams, so any view's features can be made in any order, on any thread,
 // with the same result.
+class Random;
+
 class SyntheticCity {
  public:
-  // Lays out the city (blocks, points, database views, queries); Check()s the options.
-  explicit SyntheticCity(const SyntheticCityOptions& options);
+  // Lays out the city (blocks, points, database views, queries); Check()s the options. With a
+  // descriptor bank the appearance is real: each point takes a track of the bank (tracks repeat
+  // when the city has more points, every track as often), each view the descriptor of the
+  // track's view nearest in viewing direction (relative to the spread of the point's views and
+  // of the track's: RelativeViewOffset), night views its night descriptor (a point whose
+  // view was not found again at night is not detected), and clutter other tracks' descriptors;
+  // descriptor_dim becomes the bank's. Throws std::invalid_argument for a bank without tracks.
+  explicit SyntheticCity(const SyntheticCityOptions& options,
+                         std::shared_ptr<const DescriptorBank> bank = nullptr);
 
   const SyntheticCityOptions& options() const { return options_; }
   const std::vector<Eigen::AlignedBox3d>& blocks() const { return blocks_; }
@@ -127,8 +141,15 @@ class SyntheticCity {
   // True when the segment from `from` to `to` crosses no block.
   bool IsSegmentFree(const Eigen::Vector3d& from, const Eigen::Vector3d& to) const;
 
-  // The noise-free unit descriptor of a point (shared by repeated points).
+  // The noise-free unit descriptor of a point (shared by repeated points); with a bank, its
+  // track's view nearest its mean viewing direction.
   Eigen::VectorXf PointDescriptor(uint32_t point_index) const;
+  // The bank, or nullptr for the random appearance.
+  const DescriptorBank* bank() const { return bank_.get(); }
+  // With a bank: the track a point's appearance takes.
+  uint32_t TrackOfPoint(uint32_t point_index) const;
+  // With a bank: the bank view whose descriptor a view from `camera_center` gets of the point.
+  uint32_t BankViewOfPoint(uint32_t point_index, const Eigen::Vector3d& camera_center) const;
 
   // Keypoints (projections plus pixel noise, in random order, capped at max_keypoints_per_image)
   // and descriptors (point descriptor plus noise, renormalized) of a view; `view_key` addresses the
@@ -144,8 +165,29 @@ class SyntheticCity {
   void PlaceQueries(QueryCondition condition);
   // Blocks whose footprint lies within `range` of (x, y).
   std::vector<int> BlocksNear(double x, double y, double range) const;
+  // Fills viewing_references_ (a pass over the database views' visible points).
+  void ComputeViewingReferences();
+  // The points a view detects, at most max_points of them, in random order.
+  std::vector<uint32_t> DetectedPoints(const SyntheticView& view, bool night, size_t max_points,
+                                       Random& random) const;
+  // The unit descriptor a view from `camera_center` sees of point p, with `random` for the
+  // random appearance's noise.
+  Eigen::VectorXf ObservedDescriptor(uint32_t p, const Eigen::Vector3d& camera_center, bool night,
+                                     Random& random) const;
+  // The bank view's descriptor for point p (the night one at night), offset for a reused track.
+  Eigen::VectorXf ObservedDescriptorFromBank(uint32_t point_index, uint32_t view, bool night) const;
+  // A detection of no point: a random unit vector, or with a bank a random view's descriptor.
+  Eigen::VectorXf ClutterDescriptor(bool night, Random& random) const;
 
   SyntheticCityOptions options_;
+  std::shared_ptr<const DescriptorBank> bank_;
+  // With a bank: tracks in a seeded random order; appearance a takes track_order_[a % tracks].
+  std::vector<uint32_t> track_order_;
+  // With a bank: each point's mean viewing direction from the database views that see it (its
+  // facade normal when none does), the reference its views' directions are taken against, as a
+  // bank track's are against its mean.
+  std::vector<Eigen::Vector3d> viewing_references_;
+  std::vector<float> viewing_spreads_;  // DirectionSpread of those views
   std::vector<Eigen::AlignedBox3d> blocks_;
   std::vector<Eigen::Vector3d> points_;
   std::vector<Eigen::Vector3d> point_normals_;

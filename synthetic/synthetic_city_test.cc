@@ -5,12 +5,14 @@
 
 #include <fstream>
 #include <map>
+#include <memory>
 #include <set>
 #include <sstream>
 
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
 #include "synthetic/synthetic_city_writer.h"
+#include "scene/descriptor_bank_test_support.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -354,6 +356,112 @@ TEST(SyntheticCityWriter, ColmapAcceptsTheModel) {
   const std::string output = ReadFile(log);
   EXPECT_THAT(output, HasSubstr("Points: " + std::to_string(stats.num_map_points)));
   EXPECT_THAT(output, HasSubstr("Registered images: " + std::to_string(stats.num_database_images)));
+}
+
+std::shared_ptr<const DescriptorBank> RandomBank(int tracks, int dim, uint64_t seed) {
+  return std::make_shared<const DescriptorBank>(testing::RandomDescriptorBank(tracks, dim, seed, 2));
+}
+
+// Whether `row` is one of `rows`, exactly.
+bool IsRowOf(const Eigen::RowVectorXf& row, const DescriptorMatrix& rows, int64_t first,
+             int64_t end) {
+  for (int64_t i = first; i < end; ++i) {
+    if (rows.row(i) == row) return true;
+  }
+  return false;
+}
+
+TEST(SyntheticCityRealAppearance, EveryDetectionIsARealViewOfItsPointsTrack) {
+  const auto bank = RandomBank(300, 16, 1);
+  SyntheticCityOptions options = SyntheticCityOptions::Preset("tiny");
+  const SyntheticCity city(options, bank);
+  EXPECT_EQ(city.options().descriptor_dim, 16);
+  size_t detections = 0;
+  for (size_t i = 0; i < 3; ++i) {
+    const SyntheticView& view = city.database_views()[i];
+    const SyntheticViewFeatures made = city.MakeViewFeatures(view, QueryCondition::kDay, i);
+    const Eigen::Vector3d center = CameraCenterInWorld(view.cam_from_world);
+    for (size_t k = 0; k < made.point_of_keypoint.size(); ++k) {
+      const Eigen::RowVectorXf descriptor = made.features.descriptors.row(k);
+      if (made.point_of_keypoint[k] < 0) {
+        // Clutter: some view's descriptor too, never a random vector.
+        EXPECT_TRUE(IsRowOf(descriptor, bank->day(), 0, bank->day().rows()));
+        continue;
+      }
+      const auto p = static_cast<uint32_t>(made.point_of_keypoint[k]);
+      const uint32_t track = city.TrackOfPoint(p);
+      const uint32_t chosen = city.BankViewOfPoint(p, center);
+      ASSERT_GE(chosen, bank->FirstView(track));
+      ASSERT_LT(chosen, bank->EndView(track));
+      if (city.appearance_of_point()[p] < bank->NumTracks()) {
+        // A track's first use: the chosen view's descriptor itself.
+        EXPECT_EQ(descriptor, bank->day().row(chosen));
+      } else {
+        EXPECT_NEAR(descriptor.norm(), 1.0f, 1e-5f);
+      }
+      ++detections;
+    }
+  }
+  EXPECT_GT(detections, 50u);
+}
+
+TEST(SyntheticCityRealAppearance, NightDescriptorsOnlyInNightQueries) {
+  const auto bank = RandomBank(300, 16, 2);
+  SyntheticCityOptions options = SyntheticCityOptions::Preset("tiny");
+  const SyntheticCity city(options, bank);
+  const auto count_night_rows = [&](const SyntheticViewFeatures& made) {
+    size_t night = 0;
+    for (int64_t k = 0; k < made.features.descriptors.rows(); ++k) {
+      night += IsRowOf(made.features.descriptors.row(k), bank->night(), 0, bank->night().rows());
+    }
+    return night;
+  };
+  size_t night_in_day = 0, night_in_night = 0, detections_at_night = 0;
+  for (size_t i = 0; i < 2; ++i) {
+    night_in_day +=
+        count_night_rows(city.MakeViewFeatures(city.database_views()[i], QueryCondition::kDay, i));
+    night_in_day += count_night_rows(city.MakeViewFeatures(city.queries(QueryCondition::kDay)[i],
+                                                           QueryCondition::kDay, 100 + i));
+    const SyntheticView& view = city.queries(QueryCondition::kNight)[i];
+    const SyntheticViewFeatures night =
+        city.MakeViewFeatures(view, QueryCondition::kNight, 200 + i);
+    night_in_night += count_night_rows(night);
+    // A night detection is of a view found again at night.
+    const Eigen::Vector3d center = CameraCenterInWorld(view.cam_from_world);
+    for (const int64_t p : night.point_of_keypoint) {
+      if (p < 0) continue;
+      EXPECT_TRUE(bank->HasNight(city.BankViewOfPoint(static_cast<uint32_t>(p), center)));
+      ++detections_at_night;
+    }
+  }
+  EXPECT_EQ(night_in_day, 0u);
+  EXPECT_GT(detections_at_night, 20u);
+  EXPECT_GE(night_in_night, detections_at_night / 2);
+}
+
+TEST(SyntheticCityRealAppearance, TheSameSeedAndBankGiveTheSameCity) {
+  const auto bank = RandomBank(200, 8, 3);
+  SyntheticCityOptions options = SyntheticCityOptions::Preset("tiny");
+  options.bank_reuse_noise = 0.3;
+  const SyntheticCity a(options, bank), b(options, bank);
+  options.seed = 9;
+  const SyntheticCity other(options, bank);
+  const SyntheticView& view = a.database_views()[0];
+  const SyntheticViewFeatures made_a = a.MakeViewFeatures(view, QueryCondition::kDay, 5);
+  const SyntheticViewFeatures made_b = b.MakeViewFeatures(view, QueryCondition::kDay, 5);
+  EXPECT_EQ(made_a.features.descriptors, made_b.features.descriptors);
+  EXPECT_EQ(made_a.features.keypoints, made_b.features.keypoints);
+  // Another seed deals the tracks out differently.
+  size_t same_track = 0;
+  for (uint32_t p = 0; p < 200; ++p) same_track += a.TrackOfPoint(p) == other.TrackOfPoint(p);
+  EXPECT_LT(same_track, 20u);
+  // A bank without tracks is refused.
+  EXPECT_THROW(
+      SyntheticCity(options, std::make_shared<const DescriptorBank>(
+                                 "xfeat", std::vector<std::string>{}, std::vector<uint32_t>{0},
+                                 DescriptorMatrix(0, 8), ViewDirectionMatrix(0, 3),
+                                 DescriptorMatrix(0, 8), std::vector<uint8_t>{})),
+      std::invalid_argument);
 }
 
 }  // namespace

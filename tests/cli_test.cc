@@ -302,6 +302,25 @@ TEST_F(CliTest, BadInputsFailWithAClearMessage) {
             0);
   EXPECT_THAT(ReadText(temp_ / "train.log"),
               HasSubstr("--output shortcut scores points at the descriptor's width"));
+
+  // A folder that is not a real set, a bank that is not one, a real appearance without a bank.
+  fs::create_directories(Temp("not-a-set"));
+  EXPECT_NE(RunHscloc(fmt::format("bank --set {} --out {}", Temp("not-a-set"), Temp("b.bank")),
+                      temp_ / "bank.log"),
+            0);
+  EXPECT_THAT(ReadText(temp_ / "bank.log"), HasSubstr("needs images/ (photos) and map/"));
+  EXPECT_FALSE(fs::exists(Temp("b.bank")));
+  std::ofstream(Temp("fake.bank")) << "nothing like a bank";
+  EXPECT_NE(RunHscloc(fmt::format("synth --preset tiny --appearance real --bank {} --out {}",
+                                  Temp("fake.bank"), Temp("fake-city")),
+                      temp_ / "synth.log"),
+            0);
+  EXPECT_THAT(ReadText(temp_ / "synth.log"), HasSubstr("is not a descriptor bank"));
+  EXPECT_NE(
+      RunHscloc(fmt::format("synth --preset tiny --appearance real --out {}", Temp("no-bank-city")),
+                temp_ / "synth2.log"),
+      0);
+  EXPECT_THAT(ReadText(temp_ / "synth2.log"), HasSubstr("--appearance real needs --bank"));
 }
 
 }  // namespace

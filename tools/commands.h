@@ -11,6 +11,7 @@ using CommandRunner = std::function<int()>;
 void AddSynthCommand(CLI::App& app, CommandRunner& run);
 void AddExtractCommand(CLI::App& app, CommandRunner& run);
 void AddTriangulateCommand(CLI::App& app, CommandRunner& run);
+void AddBankCommand(CLI::App& app, CommandRunner& run);
 void AddBuildMapCommand(CLI::App& app, CommandRunner& run);
 void AddInspectCommand(CLI::App& app, CommandRunner& run);
 void AddTrainCommand(CLI::App& app, CommandRunner& run);

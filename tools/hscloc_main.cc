@@ -28,6 +28,7 @@ int main(int argc, char** argv) {
   hscloc::AddSynthCommand(app, run);
   hscloc::AddExtractCommand(app, run);
   hscloc::AddTriangulateCommand(app, run);
+  hscloc::AddBankCommand(app, run);
   hscloc::AddBuildMapCommand(app, run);
   hscloc::AddInspectCommand(app, run);
   hscloc::AddTrainCommand(app, run);

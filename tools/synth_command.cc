@@ -1,4 +1,5 @@
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <sys/resource.h>
 
 #include <iostream>
@@ -20,6 +21,9 @@ struct SynthArguments {
   int num_day_queries = -1;
   int num_night_queries = -1;
   double repeated_fraction = -1;
+  std::string appearance = "random";
+  std::string bank;
+  double bank_reuse_noise = -1;
   int num_threads = 0;
   bool overwrite = false;
   bool float32 = false;
@@ -38,9 +42,28 @@ int RunSynth(const SynthArguments& arguments) {
   if (arguments.num_day_queries >= 0) options.num_day_queries = arguments.num_day_queries;
   if (arguments.num_night_queries >= 0) options.num_night_queries = arguments.num_night_queries;
   if (arguments.repeated_fraction >= 0) options.repeated_fraction = arguments.repeated_fraction;
+  if (arguments.bank_reuse_noise >= 0) options.bank_reuse_noise = arguments.bank_reuse_noise;
+  std::shared_ptr<const DescriptorBank> bank;
+  if (arguments.appearance == "real") {
+    if (arguments.bank.empty()) {
+      std::cerr << "error: --appearance real needs --bank (made by `hscloc bank`)\n";
+      return 1;
+    }
+    if (arguments.descriptor_dim > 0) {
+      std::cerr << "error: --descriptor-dim is the bank's with --appearance real\n";
+      return 1;
+    }
+    bank = std::make_shared<const DescriptorBank>(DescriptorBank::Load(arguments.bank));
+    std::cerr << fmt::format("bank {}: {} tracks, {} views of {}-D {} descriptors from {}\n",
+                             arguments.bank, bank->NumTracks(), bank->NumViews(), bank->dimension(),
+                             bank->feature(), fmt::join(bank->sources(), ", "));
+  } else if (!arguments.bank.empty()) {
+    std::cerr << "error: --bank is for --appearance real\n";
+    return 1;
+  }
 
   Timer timer;
-  const SyntheticCity city(options);
+  const SyntheticCity city(options, bank);
   std::cerr << fmt::format("laid out {} blocks, {} points, {} database views in {}\n",
                            city.blocks().size(), city.points().size(), city.database_views().size(),
                            FormatDuration(timer.ElapsedSeconds()));
@@ -64,8 +87,8 @@ int RunSynth(const SynthArguments& arguments) {
       arguments.preset, options.seed, arguments.output_dir, stats.num_database_images,
       stats.num_map_points, stats.num_city_points, stats.num_database_observations,
       stats.mean_track_length, stats.num_database_keypoints, stats.num_day_queries,
-      stats.num_night_queries, options.descriptor_dim, FormatDuration(timer.ElapsedSeconds()),
-      PeakMemoryMiB());
+      stats.num_night_queries, city.options().descriptor_dim,
+      FormatDuration(timer.ElapsedSeconds()), PeakMemoryMiB());
   return 0;
 }
 
@@ -87,6 +110,17 @@ void AddSynthCommand(CLI::App& app, CommandRunner& run) {
                       "Number of night queries (default: the preset's)");
   command->add_option("--repeated-fraction", arguments->repeated_fraction,
                       "Share of points that copy another building's appearance");
+  command
+      ->add_option("--appearance", arguments->appearance,
+                   "random (a random unit vector per point plus noise) or real (descriptors of "
+                   "real photos from --bank)")
+      ->check(CLI::IsMember({"random", "real"}))
+      ->capture_default_str();
+  command->add_option("--bank", arguments->bank, "Descriptor bank (hscloc bank)")
+      ->check(CLI::ExistingFile);
+  command->add_option("--bank-reuse-noise", arguments->bank_reuse_noise,
+                      "Norm of the noise that sets a bank track's later uses apart (default: "
+                      "the preset's)");
   command->add_option("--threads", arguments->num_threads, "Threads (0: all cores)");
   command->add_flag("--overwrite", arguments->overwrite, "Replace an existing output directory");
   command->add_flag("--float32", arguments->float32,
