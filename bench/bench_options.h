@@ -16,7 +16,8 @@ struct BenchOptions {
   // The real sets' training budget in minutes (0: `hscloc train`'s own for the map); a row
   // measured with one is named after it, beside the default's.
   double real_train_minutes = 0;
-  int seeds = 5;  // the real sets' training seeds, 1 .. seeds
+  int seeds = 5;                      // the real sets' training seeds, 1 .. seeds
+  std::string appearance = "random";  // of --scale-only's city: random or real
   std::filesystem::path work = "bench-work";
   std::filesystem::path data = HSCLOC_DEFAULT_DATA_DIR;
   // The sets that ship with the project (kitti-07), read where `data` lacks them.
