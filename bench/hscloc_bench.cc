@@ -194,7 +194,7 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
                               .value("network", json::object())
                               .value("training", json::object())
                               .value("held_out_checks", json::array());
-  Step(fmt::format("{}: hscloc serve, load time and memory", synthetic.preset));
+  Step(fmt::format("{}: hscloc serve, load time and memory", synthetic.label));
   const ServeRun serve = MeasureServe(synthetic.hscloc, synthetic.map,
                                       synthetic.map.parent_path() / "logs" / "serve.log");
   row["serve_load_s"] = serve.load_seconds;
@@ -208,14 +208,14 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
   std::vector<LocalizationQuery> day;
   std::vector<std::pair<std::string, std::vector<LocalizationQuery>>> queries_for_curve;
   for (const std::string condition : {"day", "night"}) {
-    Step(fmt::format("{}: localize {} queries, HSC and nearest neighbours", synthetic.preset,
+    Step(fmt::format("{}: localize {} queries, HSC and nearest neighbours", synthetic.label,
                      condition));
     const std::vector<LocalizationQuery> queries = LoadQueries(
         synthetic.city / "queries" / fmt::format("{}_time_queries_with_intrinsics.txt", condition),
         *features, nullptr, queries_per_condition);
     if (condition == std::string("day")) day = queries;
     queries_for_curve.emplace_back(condition, queries);
-    json peers = ComparePeers(synthetic.preset + " " + condition, synthetic.map,
+    json peers = ComparePeers(synthetic.label + " " + condition, synthetic.map,
                               synthetic.build["train_s"].get<double>(), queries, ground_truth,
                               {{"skipped",
                                 "COLMAP matches 128-D SIFT only; the synthetic city's "
@@ -223,7 +223,7 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
     conditions[condition] = peers;
   }
   row["peers"] = conditions;
-  Step(fmt::format("{}: localization with the network of each held-out check", synthetic.preset));
+  Step(fmt::format("{}: localization with the network of each held-out check", synthetic.label));
   const size_t curve_queries = std::max<size_t>(1, queries_per_condition / 4);
   std::vector<std::pair<std::string, std::vector<LocalizationQuery>>> curve_sets;
   for (const auto& [condition, queries] : queries_for_curve) {
@@ -240,13 +240,13 @@ json MeasureMap(const SyntheticMap& synthetic, size_t queries_per_condition, jso
     total.push_back(localizer.Localize(query).timings.total_ms);
   row["query_p50_ms"] = Percentile(total, 0.5);
   if (with_grid) {
-    Step(fmt::format("{}: network against its FLOP floor", synthetic.preset));
+    Step(fmt::format("{}: network against its FLOP floor", synthetic.label));
     (*city_extras)["network"] = NetworkAgainstFloor(localizer, day.front(), peaks);
-    Step(fmt::format("{}: latency per stage over keypoints, images and mode", synthetic.preset));
+    Step(fmt::format("{}: latency per stage over keypoints, images and mode", synthetic.label));
     const std::vector<LocalizationQuery> grid_queries(
         day.begin(), day.begin() + std::min<size_t>(day.size(), queries_per_condition / 2));
     (*city_extras)["latency"] = LatencyGrid(localizer, grid_queries);
-    Step(fmt::format("{}: server throughput over loopback", synthetic.preset));
+    Step(fmt::format("{}: server throughput over loopback", synthetic.label));
     (*city_extras)["server"] = ServerThroughput(synthetic.map, grid_queries);
   }
   return row;
