@@ -194,8 +194,9 @@ SyntheticCity::SyntheticCity(const SyntheticCityOptions& options,
       std::swap(track_order_[i - 1], track_order_[shuffle.UniformInt(i)]);
     }
   }
-  THROW_CHECK_MSG(options_.bank_reuse_noise >= 0, "bank_reuse_noise must be >= 0 (got {})",
-                  options_.bank_reuse_noise);
+  THROW_CHECK_MSG(options_.bank_reuse_noise >= 0 && options_.bank_view_noise >= 0,
+                  "bank_reuse_noise and bank_view_noise must be >= 0 (got {}, {})",
+                  options_.bank_reuse_noise, options_.bank_view_noise);
   options_.Check();
   LayOutBlocksAndPoints();
   AssignRepeatedAppearance();
@@ -568,7 +569,17 @@ std::vector<uint32_t> SyntheticCity::DetectedPoints(const SyntheticView& view, b
 Eigen::VectorXf SyntheticCity::ObservedDescriptor(uint32_t p, const Eigen::Vector3d& camera_center,
                                                   bool night, Random& random) const {
   if (bank_ != nullptr) {
-    return ObservedDescriptorFromBank(p, BankViewOfPoint(p, camera_center), night);
+    Eigen::VectorXf descriptor =
+        ObservedDescriptorFromBank(p, BankViewOfPoint(p, camera_center), night);
+    if (options_.bank_view_noise > 0) {
+      const double per_dimension =
+          options_.bank_view_noise / std::sqrt(static_cast<double>(descriptor.size()));
+      for (int64_t d = 0; d < descriptor.size(); ++d) {
+        descriptor[d] += per_dimension * random.Normal();
+      }
+      descriptor.normalize();
+    }
+    return descriptor;
   }
   const int dim = options_.descriptor_dim;
   const double noise = night ? options_.night_descriptor_noise : options_.day_descriptor_noise;

@@ -62,8 +62,14 @@ struct SyntheticCityOptions {
   double day_descriptor_noise = 0.35;  // norm of the noise added to a unit descriptor
   int clutter_per_image = 150;         // detections of no 3D point
   // With a descriptor bank (real appearance): the norm of the noise that tells a track's second
-  // and later uses apart (0: copies alike), fixed per point that uses it.
+  // and later uses apart, fixed per point that uses it; 0 (copies alike, up to each view's noise)
+  // keeps the confusion between points nearest the real sets' (docs/decisions.md).
   double bank_reuse_noise = 0.0;
+  // With a descriptor bank: the norm of the noise each view adds to its bank view's descriptor.
+  // A synthetic point may have more views than its track, and views that take the same bank view
+  // would otherwise be identical; 0.2 brings the best cosine of a view with another view of its
+  // point to the real sets' (docs/decisions.md, "Real appearance").
+  double bank_view_noise = 0.2;
 
   // --- Queries (held out: not database images).
   int num_day_queries = 50;

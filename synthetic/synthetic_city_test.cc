@@ -10,9 +10,9 @@
 #include <sstream>
 
 #include "scene/colmap_io.h"
+#include "scene/descriptor_bank_test_support.h"
 #include "scene/feature_io.h"
 #include "synthetic/synthetic_city_writer.h"
-#include "scene/descriptor_bank_test_support.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -359,7 +359,8 @@ TEST(SyntheticCityWriter, ColmapAcceptsTheModel) {
 }
 
 std::shared_ptr<const DescriptorBank> RandomBank(int tracks, int dim, uint64_t seed) {
-  return std::make_shared<const DescriptorBank>(testing::RandomDescriptorBank(tracks, dim, seed, 2));
+  return std::make_shared<const DescriptorBank>(
+      testing::RandomDescriptorBank(tracks, dim, seed, 2));
 }
 
 // Whether `row` is one of `rows`, exactly.
@@ -374,7 +375,10 @@ bool IsRowOf(const Eigen::RowVectorXf& row, const DescriptorMatrix& rows, int64_
 TEST(SyntheticCityRealAppearance, EveryDetectionIsARealViewOfItsPointsTrack) {
   const auto bank = RandomBank(300, 16, 1);
   SyntheticCityOptions options = SyntheticCityOptions::Preset("tiny");
+  options.bank_view_noise = 0;
   const SyntheticCity city(options, bank);
+  options.bank_view_noise = 0.2;
+  const SyntheticCity noisy(options, bank);
   EXPECT_EQ(city.options().descriptor_dim, 16);
   size_t detections = 0;
   for (size_t i = 0; i < 3; ++i) {
@@ -394,8 +398,14 @@ TEST(SyntheticCityRealAppearance, EveryDetectionIsARealViewOfItsPointsTrack) {
       ASSERT_GE(chosen, bank->FirstView(track));
       ASSERT_LT(chosen, bank->EndView(track));
       if (city.appearance_of_point()[p] < bank->NumTracks()) {
-        // A track's first use: the chosen view's descriptor itself.
+        // A track's first use: the chosen view's descriptor itself, or near it with view noise.
         EXPECT_EQ(descriptor, bank->day().row(chosen));
+        const SyntheticViewFeatures noisy_made =
+            noisy.MakeViewFeatures(view, QueryCondition::kDay, i);
+        ASSERT_EQ(noisy_made.point_of_keypoint[k], made.point_of_keypoint[k]);
+        const Eigen::RowVectorXf blurred = noisy_made.features.descriptors.row(k);
+        EXPECT_NE(blurred, bank->day().row(chosen));
+        EXPECT_GT(blurred.dot(bank->day().row(chosen)), 0.85f);
       } else {
         EXPECT_NEAR(descriptor.norm(), 1.0f, 1e-5f);
       }

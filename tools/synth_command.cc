@@ -24,6 +24,7 @@ struct SynthArguments {
   std::string appearance = "random";
   std::string bank;
   double bank_reuse_noise = -1;
+  double bank_view_noise = -1;
   int num_threads = 0;
   bool overwrite = false;
   bool float32 = false;
@@ -43,6 +44,7 @@ int RunSynth(const SynthArguments& arguments) {
   if (arguments.num_night_queries >= 0) options.num_night_queries = arguments.num_night_queries;
   if (arguments.repeated_fraction >= 0) options.repeated_fraction = arguments.repeated_fraction;
   if (arguments.bank_reuse_noise >= 0) options.bank_reuse_noise = arguments.bank_reuse_noise;
+  if (arguments.bank_view_noise >= 0) options.bank_view_noise = arguments.bank_view_noise;
   std::shared_ptr<const DescriptorBank> bank;
   if (arguments.appearance == "real") {
     if (arguments.bank.empty()) {
@@ -118,6 +120,9 @@ void AddSynthCommand(CLI::App& app, CommandRunner& run) {
       ->capture_default_str();
   command->add_option("--bank", arguments->bank, "Descriptor bank (hscloc bank)")
       ->check(CLI::ExistingFile);
+  command->add_option("--bank-view-noise", arguments->bank_view_noise,
+                      "Norm of the noise each view adds to its bank descriptor (default: the "
+                      "preset's)");
   command->add_option("--bank-reuse-noise", arguments->bank_reuse_noise,
                       "Norm of the noise that sets a bank track's later uses apart (default: "
                       "the preset's)");
