@@ -33,11 +33,11 @@ inline DescriptorBank RandomDescriptorBank(int tracks, int dim, uint64_t seed, i
     night.row(v).normalize();
     has_night[v] = v % 3 != 0;
     if (!has_night[v]) night.row(v).setZero();
-    directions.row(v) = Eigen::Vector3f(static_cast<float>(random.Normal()),
-                                        static_cast<float>(random.Normal()),
-                                        1 + static_cast<float>(std::abs(random.Normal())))
-                            .normalized()
-                            .transpose();
+    directions.row(v) =
+        Eigen::Vector3f(static_cast<float>(random.Normal()), static_cast<float>(random.Normal()),
+                        1 + static_cast<float>(std::abs(random.Normal())))
+            .normalized()
+            .transpose();
   }
   return DescriptorBank("xfeat", {source}, std::move(offsets), std::move(day),
                         std::move(directions), std::move(night), std::move(has_night));

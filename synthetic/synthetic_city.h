@@ -171,6 +171,8 @@ class SyntheticCity {
   void PlaceQueries(QueryCondition condition);
   // Blocks whose footprint lies within `range` of (x, y).
   std::vector<int> BlocksNear(double x, double y, double range) const;
+  // With a bank: checks it and deals its tracks out in a seeded order (track_order_).
+  void DealBankTracks();
   // Fills viewing_references_ (a pass over the database views' visible points).
   void ComputeViewingReferences();
   // The points a view detects, at most max_points of them, in random order.
