@@ -384,6 +384,7 @@ TEST(SyntheticCityRealAppearance, EveryDetectionIsARealViewOfItsPointsTrack) {
   for (size_t i = 0; i < 3; ++i) {
     const SyntheticView& view = city.database_views()[i];
     const SyntheticViewFeatures made = city.MakeViewFeatures(view, QueryCondition::kDay, i);
+    const SyntheticViewFeatures noisy_made = noisy.MakeViewFeatures(view, QueryCondition::kDay, i);
     const Eigen::Vector3d center = CameraCenterInWorld(view.cam_from_world);
     for (size_t k = 0; k < made.point_of_keypoint.size(); ++k) {
       const Eigen::RowVectorXf descriptor = made.features.descriptors.row(k);
@@ -400,8 +401,6 @@ TEST(SyntheticCityRealAppearance, EveryDetectionIsARealViewOfItsPointsTrack) {
       if (city.appearance_of_point()[p] < bank->NumTracks()) {
         // A track's first use: the chosen view's descriptor itself, or near it with view noise.
         EXPECT_EQ(descriptor, bank->day().row(chosen));
-        const SyntheticViewFeatures noisy_made =
-            noisy.MakeViewFeatures(view, QueryCondition::kDay, i);
         ASSERT_EQ(noisy_made.point_of_keypoint[k], made.point_of_keypoint[k]);
         const Eigen::RowVectorXf blurred = noisy_made.features.descriptors.row(k);
         EXPECT_NE(blurred, bank->day().row(chosen));
