@@ -208,6 +208,9 @@ DescriptorBank BankFromSet(const fs::path& set_dir, const fs::path& work_dir,
     if (photo.empty())
       ThrowInvalidArgument("cannot read the photo {}", (images / names[i]).string());
     fs::create_directories(out.parent_path());
+    // Stored losslessly (the transform's own JPEG step is the night photo's compression) under
+    // the day photo's name, so that the night features are found by the same image names; the
+    // reader goes by the file's content, not its extension.
     const std::string partial = out.string() + ".partial.png";
     cv::imwrite(partial, NightPhoto(photo, options.night, MixBits(i)));
     fs::rename(partial, out);
