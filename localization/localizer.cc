@@ -487,7 +487,9 @@ void Localizer::EvaluateRound(const LocalizationQuery& query, const LocalizerOpt
       EvaluateCandidates(query, options, begin + 1, end, /*stop_when_accepted=*/true, evaluation);
     }
   }
+  ++evaluation.result.timings.rounds;
   ScopedTimer timer(&evaluation.result.timings.pose_ms);
+  ScopedTimer refine_timer(&evaluation.result.timings.refine_ms);
   RefineRoundWinner(query, options, begin, evaluation);
 }
 
@@ -501,7 +503,12 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   const bool votes_only = options.retrieval == RetrievalMode::kVotes;
   {
     ScopedTimer timer(&result.timings.retrieval_ms);
-    result.candidates = votes_only ? RetrieveByVotes(query, options, {}) : Retrieve(query, options);
+    if (votes_only) {
+      ScopedTimer votes_timer(&result.timings.votes_ms);
+      result.candidates = RetrieveByVotes(query, options, {});
+    } else {
+      result.candidates = Retrieve(query, options);
+    }
   }
   // A query left without a pose answers with its first candidate's, retrieval's best guess.
   const auto fail = [&](const std::string& reason) {
@@ -523,6 +530,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
     const size_t first_voted = result.candidates.size();
     {
       ScopedTimer timer(&result.timings.retrieval_ms);
+      ScopedTimer votes_timer(&result.timings.votes_ms);
       std::vector<LocalizationCandidate> voted = RetrieveByVotes(query, options, result.candidates);
       result.candidates.insert(result.candidates.end(), voted.begin(), voted.end());
     }
@@ -539,6 +547,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   FinalMatches final;
   {
     ScopedTimer timer(&result.timings.pose_ms);
+    ScopedTimer refine_timer(&result.timings.refine_ms);
     final = PoolAgreeingCandidates(query, options, evaluation);
   }
   result.success = true;

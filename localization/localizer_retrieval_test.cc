@@ -68,6 +68,11 @@ TEST_F(SmallCityLocalizerTest, PointVotesRecoverQueriesThatRetrievalSendsAstray)
       images.insert(candidate.image_index);
     }
     EXPECT_EQ(images.size(), 20u) << "no image is tried twice";
+    EXPECT_EQ(result.timings.rounds, 2);
+    EXPECT_GT(result.timings.votes_ms, 0);
+    EXPECT_LE(result.timings.votes_ms, result.timings.retrieval_ms);
+    EXPECT_EQ(astray.timings.rounds, 1);
+    EXPECT_EQ(astray.timings.votes_ms, 0);
     for (size_t k = 11; k < 20; ++k) {
       EXPECT_LE(result.candidates[k].retrieval_score, result.candidates[k - 1].retrieval_score);
     }

@@ -240,6 +240,13 @@ TEST_F(SmallCityLocalizerTest, ResultDescribesTheWinningCandidate) {
   EXPECT_GT(result.timings.match_ms, 0);
   EXPECT_GE(result.timings.total_ms,
             result.timings.retrieval_ms + result.timings.match_ms + result.timings.pose_ms);
+  EXPECT_LE(result.timings.refine_ms, result.timings.pose_ms);
+  EXPECT_LE(result.timings.votes_ms, result.timings.retrieval_ms);
+  const bool voted = std::any_of(
+      result.candidates.begin(), result.candidates.end(),
+      [](const LocalizationCandidate& c) { return c.source == CandidateSource::kPointVotes; });
+  EXPECT_EQ(result.timings.rounds, voted ? 2 : 1);
+  EXPECT_EQ(result.timings.votes_ms > 0, voted);
 }
 
 // The pooled final pose: at least the winner's inliers, from the matches of candidates the

@@ -63,18 +63,37 @@ void CheckInputsOf(const std::vector<QueryWithIntrinsics>& queries, const Featur
 // The submission and the failure list, both appended to or truncated, written under one lock.
 class SubmissionWriter {
  public:
-  SubmissionWriter(const fs::path& out, const fs::path& failures_path, bool append) {
+  SubmissionWriter(const fs::path& out, const fs::path& failures_path, const fs::path& timings_path,
+                   bool append) {
     if (!out.parent_path().empty()) fs::create_directories(out.parent_path());
     const auto mode = std::ios::out | (append ? std::ios::app : std::ios::trunc);
     submission_.open(out, mode);
     failures_.open(failures_path, mode);
     if (!submission_ || !failures_) ThrowInvalidArgument("cannot write {}", out.string());
+    if (timings_path.empty()) return;
+    if (!timings_path.parent_path().empty()) fs::create_directories(timings_path.parent_path());
+    const bool has_header = append && fs::exists(timings_path) && fs::file_size(timings_path) > 0;
+    timings_.open(timings_path, mode);
+    if (!timings_) ThrowInvalidArgument("cannot write {}", timings_path.string());
+    if (!has_header) {
+      timings_ << "name,localized,keypoints,rounds,inliers";
+      for (const StageField& field : kStageFields) timings_ << ',' << field.name << "_ms";
+      timings_ << '\n' << std::flush;
+    }
   }
 
   // A failed query still gets a line (the top-1 retrieved image's pose), so that the submission
   // is complete; the failures file says which and why.
-  void Write(const std::string& basename, const PoseResult& result) {
+  void Write(const std::string& basename, const PoseResult& result, int64_t num_keypoints) {
     submission_ << FormatPoseLine(basename, result.cam_from_world) << std::flush;
+    if (timings_.is_open()) {
+      timings_ << fmt::format("{},{},{},{},{}", basename, result.success ? 1 : 0, num_keypoints,
+                              result.timings.rounds, result.num_inliers);
+      for (const StageField& field : kStageFields) {
+        timings_ << fmt::format(",{:.3f}", result.timings.*field.milliseconds);
+      }
+      timings_ << '\n' << std::flush;
+    }
     if (!result.success) {
       failures_ << basename << ' ' << result.failure_reason << '\n' << std::flush;
     }
@@ -83,6 +102,7 @@ class SubmissionWriter {
  private:
   std::ofstream submission_;
   std::ofstream failures_;
+  std::ofstream timings_;  // open only when the run asked for its timings
 };
 
 }  // namespace
@@ -142,7 +162,7 @@ QueryListRunSummary RunQueryList(const Localizer& localizer,
     if (!done.count(ImageBasename(queries[i].name))) pending.push_back(i);
   }
   summary.num_skipped = queries.size() - pending.size();
-  SubmissionWriter writer(options.out, summary.failures_path, options.resume);
+  SubmissionWriter writer(options.out, summary.failures_path, options.timings_out, options.resume);
 
   // Queries run in parallel, each on one core: the network's products are too small to split
   // well across cores, while whole queries are independent.
@@ -160,10 +180,10 @@ QueryListRunSummary RunQueryList(const Localizer& localizer,
     for (size_t i = next++; i < pending.size(); i = next++) {
       try {
         const QueryWithIntrinsics& entry = queries[pending[i]];
-        const PoseResult result =
-            localizer.Localize(LoadQuery(entry, features, global_descriptors));
+        const LocalizationQuery query = LoadQuery(entry, features, global_descriptors);
+        const PoseResult result = localizer.Localize(query);
         std::lock_guard<std::mutex> lock(mutex);
-        writer.Write(ImageBasename(entry.name), result);
+        writer.Write(ImageBasename(entry.name), result, query.keypoints.rows());
         ++(result.success ? summary.num_localized : summary.num_failed);
         summary.timings.Add(result.timings);
         const auto voted = [](const LocalizationCandidate& candidate) {

@@ -34,6 +34,10 @@ LocalizationQuery LoadQuery(const QueryWithIntrinsics& entry, const FeatureReade
 struct QueryListRunOptions {
   // The submission (NAME QW QX QY QZ TX TY TZ, basenames); failures go to `<out>.failures.txt`.
   std::filesystem::path out;
+  // When set, one CSV line per query: its name, whether it was localized, its keypoints, the
+  // retrieval rounds, the inliers, and the milliseconds of every stage (kStageFields); appended to
+  // when resuming.
+  std::filesystem::path timings_out;
   // Keep the queries already in `out` (a half-written last line is dropped) and append the rest.
   bool resume = false;
   // Queries localized in parallel, one core each; <= 0: all cores.

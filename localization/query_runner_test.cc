@@ -3,8 +3,10 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <fstream>
 #include <iterator>
+#include <sstream>
 
 #include "localization/map_builder.h"
 #include "localization/pose_evaluation.h"
@@ -112,6 +114,73 @@ TEST_F(QueryRunnerTest, ResumedRunWritesWhatAnUninterruptedRunWrites) {
   EXPECT_EQ(resumed.num_skipped, 2u);
   EXPECT_EQ(resumed.timings.count(), queries.size() - 2);
   EXPECT_EQ(ReadText(options.out), full_text);
+}
+
+TEST_F(QueryRunnerTest, TimingsFileHasALineOfStagesPerQueryAndResumesAfterTheFirst) {
+  const Localizer localizer = NearestNeighborLocalizer();
+  const auto features = OpenFeatureReader(City() / "features.h5");
+  const std::vector<QueryWithIntrinsics> queries = ReadQueryList(DayList());
+  ASSERT_GE(queries.size(), 3u);
+  QueryListRunOptions options;
+  options.show_progress = false;
+  options.num_threads = 1;
+  options.out = temp_.path() / "poses.txt";
+  options.timings_out = temp_.path() / "timings" / "poses.csv";
+  const std::vector<QueryWithIntrinsics> first_two(queries.begin(), queries.begin() + 2);
+  RunQueryList(localizer, first_two, *features, nullptr, options);
+  options.resume = true;
+  const QueryListRunSummary summary = RunQueryList(localizer, queries, *features, nullptr, options);
+
+  std::ifstream file(options.timings_out);
+  std::string line;
+  ASSERT_TRUE(std::getline(file, line));
+  EXPECT_EQ(line,
+            "name,localized,keypoints,rounds,inliers,retrieval_ms,votes_ms,match_ms,"
+            "visibility_ms,pose_ms,refine_ms,total_ms");
+  size_t rows = 0;
+  while (std::getline(file, line)) {
+    std::vector<std::string> cells;
+    std::stringstream stream(line);
+    for (std::string cell; std::getline(stream, cell, ',');) cells.push_back(cell);
+    ASSERT_EQ(cells.size(), 12u) << line;
+    EXPECT_EQ(cells[0], ImageBasename(queries[rows].name));
+    const LocalizationQuery query = LoadQuery(queries[rows], *features);
+    EXPECT_EQ(std::stol(cells[2]), query.keypoints.rows());
+    EXPECT_EQ(std::stoi(cells[3]), 1) << "the nearest-neighbour matcher without a network has "
+                                         "no votes' round";
+    const double total = std::stod(cells[11]);
+    EXPECT_GT(total, 0);
+    double stages = 0;
+    for (const int stage : {5, 7, 8, 9}) stages += std::stod(cells[stage]);
+    EXPECT_LE(stages, total + 0.01);
+    EXPECT_LE(std::stod(cells[10]), std::stod(cells[9]) + 0.001) << "refinement is part of pose";
+    ++rows;
+  }
+  EXPECT_EQ(rows, queries.size()) << "no header again, no query twice";
+  EXPECT_EQ(summary.timings.count(), queries.size() - 2);
+  const std::string table = FormatStageTable(summary.timings);
+  EXPECT_THAT(table, HasSubstr("p95"));
+  for (const StageField& field : kStageFields) EXPECT_THAT(table, HasSubstr(field.name));
+}
+
+TEST(StageTimingAccumulatorTest, MeansAndPercentilesPerStage) {
+  StageTimingAccumulator timings;
+  EXPECT_TRUE(std::isnan(timings.TotalPercentileMs(0.5)));
+  EXPECT_EQ(timings.Mean().total_ms, 0);
+  for (int i = 1; i <= 5; ++i) {
+    StageTimings one;
+    one.retrieval_ms = i;
+    one.votes_ms = i == 5 ? 4 : 0;
+    one.total_ms = 10 * i;
+    one.rounds = i == 5 ? 2 : 1;
+    timings.Add(one);
+  }
+  EXPECT_DOUBLE_EQ(timings.Mean().retrieval_ms, 3);
+  EXPECT_DOUBLE_EQ(timings.Mean().votes_ms, 0.8);
+  EXPECT_EQ(timings.Mean().rounds, 1);
+  EXPECT_DOUBLE_EQ(timings.TotalPercentileMs(0.5), 30);
+  EXPECT_DOUBLE_EQ(timings.PercentileMs(&StageTimings::retrieval_ms, 1.0), 5);
+  EXPECT_DOUBLE_EQ(timings.PercentileMs(&StageTimings::votes_ms, 0.5), 0);
 }
 
 TEST_F(QueryRunnerTest, AccuracyByConditionSplitsTheErrorsByList) {

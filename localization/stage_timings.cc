@@ -1,27 +1,46 @@
 #include "localization/stage_timings.h"
 
+#include <fmt/format.h>
+
 #include "util/statistics.h"
 
 namespace hscloc {
 
-void StageTimingAccumulator::Add(const StageTimings& timings) {
-  sums_.retrieval_ms += timings.retrieval_ms;
-  sums_.match_ms += timings.match_ms;
-  sums_.visibility_ms += timings.visibility_ms;
-  sums_.pose_ms += timings.pose_ms;
-  sums_.total_ms += timings.total_ms;
-  totals_ms_.push_back(timings.total_ms);
-}
+void StageTimingAccumulator::Add(const StageTimings& timings) { all_.push_back(timings); }
 
 StageTimings StageTimingAccumulator::Mean() const {
-  if (totals_ms_.empty()) return {};
-  const double count = static_cast<double>(totals_ms_.size());
-  return {sums_.retrieval_ms / count, sums_.match_ms / count, sums_.visibility_ms / count,
-          sums_.pose_ms / count, sums_.total_ms / count};
+  StageTimings mean;
+  if (all_.empty()) return mean;
+  const double count = static_cast<double>(all_.size());
+  long rounds = 0;
+  for (const StageTimings& timings : all_) {
+    for (const StageField& field : kStageFields) {
+      mean.*field.milliseconds += timings.*field.milliseconds / count;
+    }
+    rounds += timings.rounds;
+  }
+  mean.rounds = static_cast<int>(rounds / static_cast<long>(all_.size()));
+  return mean;
 }
 
-double StageTimingAccumulator::TotalPercentileMs(double fraction) const {
-  return Percentile(totals_ms_, fraction);
+double StageTimingAccumulator::PercentileMs(double StageTimings::*stage, double fraction) const {
+  std::vector<double> values;
+  values.reserve(all_.size());
+  for (const StageTimings& timings : all_) values.push_back(timings.*stage);
+  return Percentile(values, fraction);
+}
+
+std::string FormatStageTable(const StageTimingAccumulator& timings) {
+  std::string table =
+      fmt::format("{:<11} {:>9} {:>9} {:>9} {:>9}\n", "ms per query", "mean", "p50", "p95", "max");
+  const StageTimings mean = timings.Mean();
+  for (const StageField& field : kStageFields) {
+    table += fmt::format("{:<11} {:>9.1f} {:>9.1f} {:>9.1f} {:>9.1f}\n", field.name,
+                         mean.*field.milliseconds, timings.PercentileMs(field.milliseconds, 0.5),
+                         timings.PercentileMs(field.milliseconds, 0.95),
+                         timings.PercentileMs(field.milliseconds, 1.0));
+  }
+  return table;
 }
 
 }  // namespace hscloc

@@ -171,6 +171,9 @@ void PoseResultToWire(const PoseResult& result, const Scene& scene,
   timings->set_visibility_ms(result.timings.visibility_ms);
   timings->set_pose_ms(result.timings.pose_ms);
   timings->set_total_ms(result.timings.total_ms);
+  timings->set_votes_ms(result.timings.votes_ms);
+  timings->set_refine_ms(result.timings.refine_ms);
+  timings->set_rounds(static_cast<uint32_t>(result.timings.rounds));
 }
 
 std::string StatusName(wire::Status status) { return wire::Status_Name(status); }

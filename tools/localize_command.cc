@@ -65,23 +65,23 @@ int RunLocalize(LocalizeArguments& arguments) {
       RunQueryList(localizer, queries, *features,
                    global_descriptors.empty() ? nullptr : &global_descriptors, arguments.run);
 
-  const StageTimings mean = summary.timings.Mean();
   if (arguments.run.resume) {
     std::cout << fmt::format("resuming: {} of {} queries already in {}\n", summary.num_skipped,
                              summary.num_queries, arguments.run.out.string());
   }
   std::cout << fmt::format(
       "localized {} of {} queries ({} failed, listed in {}) in {}, {} threads, matcher {}\n"
-      "per query (ms): retrieval {:.1f}, match {:.1f}, visibility {:.1f}, pose {:.1f}; total mean "
-      "{:.1f}, p50 {:.1f}, p95 {:.1f}\n"
+      "{}"
       "retrieval {}: {} queries had a round of point votes, {} were localized by it\n"
       "submission: {}\n",
       summary.num_localized, summary.num_queries - summary.num_skipped, summary.num_failed,
       summary.failures_path.string(), FormatDuration(summary.seconds), summary.num_threads,
-      MatcherName(options.matcher), mean.retrieval_ms, mean.match_ms, mean.visibility_ms,
-      mean.pose_ms, mean.total_ms, summary.timings.TotalPercentileMs(0.5),
-      summary.timings.TotalPercentileMs(0.95), RetrievalModeName(localizer.options().retrieval),
-      summary.num_with_votes, summary.num_won_by_votes, arguments.run.out.string());
+      MatcherName(options.matcher), FormatStageTable(summary.timings),
+      RetrievalModeName(localizer.options().retrieval), summary.num_with_votes,
+      summary.num_won_by_votes, arguments.run.out.string());
+  if (!arguments.run.timings_out.empty()) {
+    std::cout << fmt::format("timings per query: {}\n", arguments.run.timings_out.string());
+  }
   return 0;
 }
 
@@ -109,6 +109,8 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->check(CLI::ExistingFile);
   command->add_option("--out", arguments->run.out, "Submission file: NAME QW QX QY QZ TX TY TZ")
       ->required();
+  command->add_option("--timings", arguments->run.timings_out,
+                      "CSV of every query's stage timings in milliseconds, rounds and inliers");
   command->add_option("--matcher", arguments->matcher, "hsc (the network) or nn (baseline)")
       ->check(CLI::IsMember({"hsc", "nn"}))
       ->capture_default_str();

@@ -62,6 +62,9 @@ class StageTimings:
     pose_ms: float = 0.0
     total_ms: float = 0.0
     server_ms: float = 0.0
+    votes_ms: float = 0.0
+    refine_ms: float = 0.0
+    rounds: int = 0
 
     @classmethod
     def from_wire(cls, timings: pb.StageTimings) -> "StageTimings":
