@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numeric>
 #include <utility>
 
 #include "localization/pooled_matches.h"
@@ -191,6 +192,8 @@ struct Localizer::Evaluation {
   std::vector<CandidateMatches> predictions;
   std::vector<CandidateMatches> matches;        // one per candidate, as posed
   std::vector<std::vector<char>> inlier_masks;  // one per candidate, empty until posed
+  // The network's descriptor-only layers, run once for the query's every prediction.
+  DescriptorLayerCache network_cache;
 };
 
 std::vector<LocalizationCandidate> Localizer::Retrieve(const LocalizationQuery& query,
@@ -216,7 +219,7 @@ bool Localizer::UsesVotes(const LocalizerOptions& options) const {
 
 std::vector<LocalizationCandidate> Localizer::RetrieveByVotes(
     const LocalizationQuery& query, const LocalizerOptions& options,
-    const std::vector<LocalizationCandidate>& tried) const {
+    const std::vector<LocalizationCandidate>& tried, DescriptorLayerCache& network_cache) const {
   std::vector<LocalizationCandidate> candidates;
   const int64_t num_keypoints = query.descriptors.rows();
   if (num_keypoints == 0) return candidates;
@@ -224,8 +227,8 @@ std::vector<LocalizationCandidate> Localizer::RetrieveByVotes(
   // dropout has learned to). Each prediction votes as much as the network is sure of it, divided
   // by the square root of the point's track length, so that a point seen from everywhere does not
   // outvote the rarer ones that place the query (as tf-idf weights words).
-  const PointPredictions predictions =
-      network_->Predict(query.descriptors, {network_->NoImageIndex()}, map_->label_tree());
+  const PointPredictions predictions = network_->Predict(
+      query.descriptors, {network_->NoImageIndex()}, map_->label_tree(), nullptr, &network_cache);
   std::vector<int64_t> points(num_keypoints);
   std::vector<float> weights(num_keypoints, 0.0f);
   for (int64_t keypoint = 0; keypoint < num_keypoints; ++keypoint) {
@@ -261,7 +264,8 @@ std::vector<LocalizationCandidate> Localizer::RetrieveByVotes(
 std::vector<CandidateMatches> Localizer::Match(const LocalizationQuery& query,
                                                const std::vector<LocalizationCandidate>& candidates,
                                                size_t begin, size_t end,
-                                               const LocalizerOptions& options) const {
+                                               const LocalizerOptions& options,
+                                               DescriptorLayerCache& network_cache) const {
   std::vector<CandidateMatches> matches(end - begin);
   if (options.matcher == Matcher::kNearestNeighbor) {
     const DescriptorMatrix unit_query = UnitRows(query.descriptors);
@@ -280,8 +284,9 @@ std::vector<CandidateMatches> Localizer::Match(const LocalizationQuery& query,
   }
   // A network trained with the visibility softmax ranks only the children an image sees.
   const bool masked = options.visibility_masked_decoding || network_->options().masked_decoding;
-  const PointPredictions predictions = network_->Predict(
-      query.descriptors, images, map_->label_tree(), masked ? &map_->visibility() : nullptr);
+  const PointPredictions predictions =
+      network_->Predict(query.descriptors, images, map_->label_tree(),
+                        masked ? &map_->visibility() : nullptr, &network_cache);
   for (size_t k = begin; k < end; ++k) {
     const int64_t row = options.use_image_id ? static_cast<int64_t>(k - begin) : 0;
     CandidateMatches& candidate_matches = matches[k - begin];
@@ -428,6 +433,28 @@ int Localizer::Choose(const std::vector<LocalizationCandidate>& candidates, size
   return best;
 }
 
+std::vector<size_t> Localizer::PoseOrder(const std::vector<LocalizationCandidate>& candidates,
+                                         size_t begin, size_t end, bool in_retrieval_order) {
+  std::vector<size_t> order(end - begin);
+  std::iota(order.begin(), order.end(), begin);
+  // The likely winner first, so that its inliers rule out the rest without their RANSAC.
+  if (!in_retrieval_order) {
+    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+      return candidates[a].num_matches > candidates[b].num_matches;
+    });
+  }
+  return order;
+}
+
+bool Localizer::CannotBeChosen(const std::vector<LocalizationCandidate>& candidates, size_t k) {
+  const int best = Choose(candidates);
+  if (best < 0) return false;
+  // A pose's inliers are among its matches, and Choose keeps the first of equal candidates.
+  const int best_inliers = candidates[best].num_inliers;
+  const int matches = candidates[k].num_matches;
+  return matches < best_inliers || (matches == best_inliers && k > static_cast<size_t>(best));
+}
+
 void Localizer::EvaluateCandidates(const LocalizationQuery& query, const LocalizerOptions& options,
                                    size_t begin, size_t end, bool stop_when_accepted,
                                    Evaluation& evaluation) const {
@@ -437,7 +464,7 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
   std::vector<CandidateMatches> matches;
   {
     ScopedTimer timer(&timings.match_ms);
-    matches = Match(query, candidates, begin, end, options);
+    matches = Match(query, candidates, begin, end, options, evaluation.network_cache);
   }
   {
     ScopedTimer timer(&timings.visibility_ms);
@@ -458,7 +485,11 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
     }
   }
   ScopedTimer timer(&timings.pose_ms);
-  for (size_t k = begin; k < end; ++k) {
+  for (const size_t k : PoseOrder(candidates, begin, end, stop_when_accepted)) {
+    if (CannotBeChosen(candidates, k)) {
+      candidates[k].evaluated = true;  // matched, and its matches may still join the pool
+      continue;
+    }
     AbsolutePoseResult pose = Pose(query, evaluation.matches[k], options);
     LocalizationCandidate& candidate = candidates[k];
     candidate.evaluated = true;
@@ -505,7 +536,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
     ScopedTimer timer(&result.timings.retrieval_ms);
     if (votes_only) {
       ScopedTimer votes_timer(&result.timings.votes_ms);
-      result.candidates = RetrieveByVotes(query, options, {});
+      result.candidates = RetrieveByVotes(query, options, {}, evaluation.network_cache);
     } else {
       result.candidates = Retrieve(query, options);
     }
@@ -531,7 +562,8 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
     {
       ScopedTimer timer(&result.timings.retrieval_ms);
       ScopedTimer votes_timer(&result.timings.votes_ms);
-      std::vector<LocalizationCandidate> voted = RetrieveByVotes(query, options, result.candidates);
+      std::vector<LocalizationCandidate> voted =
+          RetrieveByVotes(query, options, result.candidates, evaluation.network_cache);
       result.candidates.insert(result.candidates.end(), voted.begin(), voted.end());
     }
     EvaluateRound(query, options, first_voted, evaluation);

@@ -11,9 +11,10 @@
 //                  neighbours with a ratio test against each candidate's observations
 //   FilterVisible  matches to points the candidate image does not observe are dropped
 //   Pose           PnP-RANSAC and refinement per candidate (of the keypoints the network sends
-//                  to one point, the most confident); then, for the round's best candidate, of
-//                  those rival keypoints the one its pose reprojects nearest, and the pose
-//                  refined again on them
+//                  to one point, the most confident), the most matches first; a candidate with
+//                  fewer matches than the best inliers so far cannot win and is not posed; then,
+//                  for the round's best candidate, of those rival keypoints the one its pose
+//                  reprojects nearest, and the pose refined again on them
 //   Choose         the candidate pose with the most inliers wins
 //   Pool           the matches of every candidate that agrees with the winner's pose, pooled,
 //                  and the winner's pose refined over all their inliers (kept when it has at
@@ -138,8 +139,10 @@ struct LocalizationCandidate {
   image_t image_id = kInvalidImageId;
   CandidateSource source = CandidateSource::kGlobalDescriptor;
   float retrieval_score = 0;  // cosine of global descriptors, or summed vote weights
-  bool evaluated = false;     // false when an early exit skipped it
-  int num_matches = 0;        // after the visibility filter
+  // Matched and filtered; false when an early exit skipped it. A candidate with fewer matches
+  // than the best pose's inliers is evaluated but not posed (CannotBeChosen: pose_found false).
+  bool evaluated = false;
+  int num_matches = 0;  // after the visibility filter
   int num_inliers = 0;
   bool pose_found = false;
   Rigid3d cam_from_world;
@@ -198,17 +201,18 @@ class Localizer {
   // The stages (see the top of this file).
   std::vector<LocalizationCandidate> Retrieve(const LocalizationQuery& query,
                                               const LocalizerOptions& options) const;
-  // The top_k images the network's votes rank highest, except those in `tried`.
+  // The top_k images the network's votes rank highest, except those in `tried`. `network_cache`
+  // holds the query's descriptor-only layers across the network's calls.
   std::vector<LocalizationCandidate> RetrieveByVotes(
       const LocalizationQuery& query, const LocalizerOptions& options,
-      const std::vector<LocalizationCandidate>& tried) const;
+      const std::vector<LocalizationCandidate>& tried, DescriptorLayerCache& network_cache) const;
   // Whether the query's retrieval has a votes round: always, after a weak first one, or never.
   bool UsesVotes(const LocalizerOptions& options) const;
   // The matches of candidates [begin, end), one entry each.
   std::vector<CandidateMatches> Match(const LocalizationQuery& query,
                                       const std::vector<LocalizationCandidate>& candidates,
-                                      size_t begin, size_t end,
-                                      const LocalizerOptions& options) const;
+                                      size_t begin, size_t end, const LocalizerOptions& options,
+                                      DescriptorLayerCache& network_cache) const;
   CandidateMatches FilterVisible(uint32_t image_index, CandidateMatches matches) const;
   AbsolutePoseResult Pose(const LocalizationQuery& query, const CandidateMatches& matches,
                           const LocalizerOptions& options) const;
@@ -228,6 +232,14 @@ class Localizer {
   void EvaluateCandidates(const LocalizationQuery& query, const LocalizerOptions& options,
                           size_t begin, size_t end, bool stop_when_accepted,
                           Evaluation& evaluation) const;
+  // The order in which candidates [begin, end) are posed: retrieval order, or the most matches
+  // first.
+  static std::vector<size_t> PoseOrder(const std::vector<LocalizationCandidate>& candidates,
+                                       size_t begin, size_t end, bool in_retrieval_order);
+  // True when candidate k, matched but not yet posed, cannot beat the best pose so far, whatever
+  // its RANSAC finds: its pose is then not estimated, which leaves the winner and the final pose
+  // as they would be.
+  static bool CannotBeChosen(const std::vector<LocalizationCandidate>& candidates, size_t k);
   // The final pose and its matches, from the winner alone or pooled as options.final_pose says.
   struct FinalMatches;
   FinalMatches PoolAgreeingCandidates(const LocalizationQuery& query,

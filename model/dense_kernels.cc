@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <limits>
+#include <vector>
 
 #include "model/dense_kernels.h"
 
@@ -96,18 +97,73 @@ void NodeLogits(const float* projected, int64_t num_inputs, int64_t dim, const f
   }
 }
 
-float MaxOf(const float* values, int64_t count) {
-  float best = values[0];
-  int64_t i = 0;
-  if (count >= kLanes) {
-    Packet packet_best = ei::ploadu<Packet>(values);
-    for (i = kLanes; i + kLanes <= count; i += kLanes) {
-      packet_best = ei::pmax(packet_best, ei::ploadu<Packet>(values + i));
-    }
-    best = ei::predux_max(packet_best);
+namespace {
+
+// Four points at a time, each with its own sum: independent chains of fused multiply-adds.
+Packet BestOfFourPoints(const float* transposed, int64_t dim, const float* rows, int64_t width) {
+  const float* w0 = rows;
+  const float* w1 = rows + width;
+  const float* w2 = rows + 2 * width;
+  const float* w3 = rows + 3 * width;
+  Packet s0 = ei::pset1<Packet>(w0[dim]);
+  Packet s1 = ei::pset1<Packet>(w1[dim]);
+  Packet s2 = ei::pset1<Packet>(w2[dim]);
+  Packet s3 = ei::pset1<Packet>(w3[dim]);
+  for (int64_t d = 0; d < dim; ++d) {
+    const Packet x = ei::pload<Packet>(transposed + d * kLanes);
+    s0 = ei::pmadd(ei::pset1<Packet>(w0[d]), x, s0);
+    s1 = ei::pmadd(ei::pset1<Packet>(w1[d]), x, s1);
+    s2 = ei::pmadd(ei::pset1<Packet>(w2[d]), x, s2);
+    s3 = ei::pmadd(ei::pset1<Packet>(w3[d]), x, s3);
   }
-  for (; i < count; ++i) best = std::max(best, values[i]);
-  return best;
+  return ei::pmax(ei::pmax(s0, s1), ei::pmax(s2, s3));
+}
+
+Packet ScoreOfPoint(const float* transposed, int64_t dim, const float* row) {
+  Packet score = ei::pset1<Packet>(row[dim]);
+  for (int64_t d = 0; d < dim; ++d) {
+    score = ei::pmadd(ei::pset1<Packet>(row[d]), ei::pload<Packet>(transposed + d * kLanes), score);
+  }
+  return score;
+}
+
+}  // namespace
+
+void PooledMaxLogits(const float* projected, int64_t num_inputs, int64_t dim,
+                     const float* point_rows, const uint32_t* segment_starts,
+                     const uint8_t* segment_groups, int64_t num_segments, int64_t out_columns,
+                     float* out) {
+  const int64_t width = dim + 1;
+  // kLanes inputs side by side, [dim][kLanes], so that one packet holds one dimension of each:
+  // a point's score for all of them is a chain of dim fused multiply-adds.
+  thread_local std::vector<float, E::aligned_allocator<float>> transposed;
+  transposed.resize(dim * kLanes);
+  alignas(64) float best_of_lanes[kLanes];
+  for (int64_t first = 0; first < num_inputs; first += kLanes) {
+    const int64_t lanes = std::min<int64_t>(kLanes, num_inputs - first);
+    for (int64_t d = 0; d < dim; ++d) {
+      for (int64_t lane = 0; lane < kLanes; ++lane) {
+        transposed[d * kLanes + lane] = lane < lanes ? projected[(first + lane) * dim + d] : 0.0f;
+      }
+    }
+    for (int64_t k = 0; k < num_segments; ++k) {
+      Packet best = ei::pset1<Packet>(-std::numeric_limits<float>::infinity());
+      int64_t point = segment_starts[k];
+      const int64_t end = segment_starts[k + 1];
+      for (; point + 4 <= end; point += 4) {
+        best = ei::pmax(
+            best, BestOfFourPoints(transposed.data(), dim, point_rows + point * width, width));
+      }
+      for (; point < end; ++point) {
+        best = ei::pmax(best, ScoreOfPoint(transposed.data(), dim, point_rows + point * width));
+      }
+      ei::pstore(best_of_lanes, best);
+      for (int64_t lane = 0; lane < lanes; ++lane) {
+        float& logit = out[(first + lane) * out_columns + segment_groups[k]];
+        logit = std::max(logit, best_of_lanes[lane]);
+      }
+    }
+  }
 }
 
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns) {

@@ -35,8 +35,17 @@ void EluInPlace(float* values, int64_t count);
 void NodeLogits(const float* projected, int64_t num_inputs, int64_t dim, const float* node_rows,
                 int64_t num_children, int64_t out_columns, float* out);
 
-// The largest of count >= 1 values (no NaNs).
-float MaxOf(const float* values, int64_t count);
+// Pooled logits of one run of inputs against a chunk of candidate point rows (rows of dim + 1
+// floats: weights, then the bias), whose points come in segments of one child each: points
+// [segment_starts[k], segment_starts[k + 1]) belong to child segment_groups[k]. For i <
+// num_inputs, out[i * out_columns + segment_groups[k]] becomes the larger of its value and the best
+// score <projected[i, :dim], w_p> + b_p over segment k's points. The scores are never stored, and
+// each one is summed in the same order (the bias, then the dimensions in order) wherever its input
+// sits in memory.
+void PooledMaxLogits(const float* projected, int64_t num_inputs, int64_t dim,
+                     const float* point_rows, const uint32_t* segment_starts,
+                     const uint8_t* segment_groups, int64_t num_segments, int64_t out_columns,
+                     float* out);
 
 // Each of `rows` rows of `columns` values replaced by its softmax.
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns);

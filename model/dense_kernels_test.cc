@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 #include "util/random.h"
@@ -92,20 +93,74 @@ TEST(DenseKernelsTest, SoftmaxRowsArePositiveAndSumToOne) {
 
 // A row's result must not depend on its address: the same values at every offset within a
 // cache line give bit-identical outputs.
-// Every length (packet multiples, tails, shorter than a packet) and every position of the maximum,
-// at any offset into the buffer.
-TEST(DenseKernelsTest, MaxOfFindsTheLargestValue) {
+// Every number of inputs (packet multiples, tails, fewer than a packet), segments of one to nine
+// points (the four-point steps and their tails), any width: the best score of each segment, summed
+// in double as a reference, and an output already above it left alone.
+TEST(DenseKernelsTest, PooledMaxLogitsKeepsEachSegmentsBestScore) {
   Random random(5);
-  for (int64_t count = 1; count <= 70; ++count) {
-    for (int64_t offset = 0; offset < 3; ++offset) {
-      std::vector<float> values = Normal(count + offset, random);
-      const float* begin = values.data() + offset;
-      EXPECT_EQ(dense_kernels::MaxOf(begin, count), *std::max_element(begin, begin + count))
-          << count << " values at offset " << offset;
-      const int64_t where = random.UniformInt(count);
-      values[offset + where] = 100.0f;
-      EXPECT_EQ(dense_kernels::MaxOf(begin, count), 100.0f) << "maximum at " << where;
+  const int64_t columns = 12;
+  for (const int64_t dim : {1, 3, 16, 33}) {
+    for (const int64_t inputs : {1, 5, 16, 17, 40}) {
+      const std::vector<float> projected = Normal(inputs * dim, random);
+      std::vector<uint32_t> starts = {0};
+      std::vector<uint8_t> groups;
+      for (int64_t segment = 0; segment < 9; ++segment) {
+        starts.push_back(starts.back() + 1 + static_cast<uint32_t>(segment));
+        groups.push_back(static_cast<uint8_t>((segment * 5) % columns));
+      }
+      const std::vector<float> rows = Normal(int64_t{starts.back()} * (dim + 1), random);
+      std::vector<float> out(inputs * columns, -std::numeric_limits<float>::infinity());
+      const int64_t kept_input = inputs / 2;
+      out[kept_input * columns + groups[3]] = 1e6f;
+      dense_kernels::PooledMaxLogits(projected.data(), inputs, dim, rows.data(), starts.data(),
+                                     groups.data(), static_cast<int64_t>(groups.size()), columns,
+                                     out.data());
+      for (int64_t i = 0; i < inputs; ++i) {
+        std::vector<double> expected(columns, -std::numeric_limits<double>::infinity());
+        for (size_t k = 0; k < groups.size(); ++k) {
+          for (uint32_t p = starts[k]; p < starts[k + 1]; ++p) {
+            double score = rows[p * (dim + 1) + dim];
+            for (int64_t d = 0; d < dim; ++d) {
+              score += double{projected[i * dim + d]} * rows[p * (dim + 1) + d];
+            }
+            expected[groups[k]] = std::max(expected[groups[k]], score);
+          }
+        }
+        if (i == kept_input) expected[groups[3]] = 1e6;
+        for (int64_t c = 0; c < columns; ++c) {
+          if (std::isinf(expected[c])) {
+            EXPECT_TRUE(std::isinf(out[i * columns + c]) && out[i * columns + c] < 0)
+                << "no segment of child " << c;
+          } else {
+            EXPECT_NEAR(out[i * columns + c], expected[c], 1e-4 * (1 + std::abs(expected[c])))
+                << "dim " << dim << ", input " << i << " of " << inputs << ", child " << c;
+          }
+        }
+      }
     }
+  }
+}
+
+// An input's pooled logits are bit-identical wherever it sits among the inputs (its lane).
+TEST(DenseKernelsTest, PooledMaxLogitsDoNotDependOnTheInputsPlace) {
+  Random random(6);
+  const int64_t dim = 16;
+  const int64_t columns = 3;
+  const std::vector<float> input = Normal(dim, random);
+  const std::vector<uint32_t> starts = {0, 7, 8, 20};
+  const std::vector<uint8_t> groups = {0, 2, 1};
+  const std::vector<float> rows = Normal(20 * (dim + 1), random);
+  std::vector<float> first;
+  for (int64_t place = 0; place < 21; ++place) {
+    std::vector<float> projected = Normal(21 * dim, random);
+    std::copy(input.begin(), input.end(), projected.begin() + place * dim);
+    std::vector<float> out(21 * columns, -std::numeric_limits<float>::infinity());
+    dense_kernels::PooledMaxLogits(projected.data(), 21, dim, rows.data(), starts.data(),
+                                   groups.data(), 3, columns, out.data());
+    const std::vector<float> logits(out.begin() + place * columns,
+                                    out.begin() + (place + 1) * columns);
+    if (place == 0) first = logits;
+    EXPECT_EQ(logits, first) << "input at place " << place;
   }
 }
 

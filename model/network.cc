@@ -494,10 +494,11 @@ void CheckPredictInputs(const Network& network, const DescriptorMatrix& descript
 
 PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
                                   const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                                  const Visibility* visibility_mask) const {
+                                  const Visibility* visibility_mask,
+                                  DescriptorLayerCache* cache) const {
   CheckPredictInputs(*this, descriptors, image_indices, tree, visibility_mask);
   if (impl_->device == ComputeDevice::kCpu) {
-    return PredictOnCpu(*this, descriptors, image_indices, tree, visibility_mask);
+    return PredictOnCpu(*this, descriptors, image_indices, tree, visibility_mask, cache);
   }
   return NetworkInternals::PredictWithTorch(*this, descriptors, image_indices, tree,
                                             visibility_mask);

@@ -128,6 +128,16 @@ struct NetworkOptions {
   bool operator==(const NetworkOptions& other) const;
 };
 
+// What the CPU path of Network::Predict computes from the descriptors alone, per level: the
+// trunk and the first conditioned layer's W h + b, [N, C] (the per-keypoint part of the work, run
+// once however many images condition it). One per query and thread.
+struct DescriptorLayerCache {
+  const float* descriptors = nullptr;  // the matrix it was filled from, and its size
+  int64_t rows = 0;
+  int64_t cols = 0;
+  std::vector<std::vector<float>> levels;  // empty until that level was computed
+};
+
 // Predictions for K conditioning images and N descriptors; (k, n) is row k * N + n of `labels`.
 struct PointPredictions {
   int64_t num_images = 0;       // K
@@ -187,9 +197,14 @@ class Network {
   // row falls back to the plain argmax where no child qualifies, and NoImageIndex() rows are never
   // masked). Throws std::invalid_argument when the descriptor dimension, an image index, the tree
   // or the visibility lists do not fit the network. Safe to call concurrently.
+  // With `cache`, each level's descriptor-only layers are taken from it, or computed into it on
+  // first use, so that Predict calls on the same descriptors (a query's candidates, its votes
+  // without an image id, the votes' candidates) run them once; a cache filled from other
+  // descriptors throws std::invalid_argument. The libtorch path (CUDA) does not use it.
   PointPredictions Predict(const DescriptorMatrix& descriptors,
                            const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                           const Visibility* visibility_mask = nullptr) const;
+                           const Visibility* visibility_mask = nullptr,
+                           DescriptorLayerCache* cache = nullptr) const;
 
   // Predict through libtorch's operators instead of hscloc's CPU kernels: the path a CUDA device
   // takes, and the reference the CPU kernels are tested against. Same contract as Predict.

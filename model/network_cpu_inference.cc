@@ -15,6 +15,7 @@
 #include "model/network_decoding.h"
 #include "model/network_module.h"
 #include "model/point_candidates.h"
+#include "util/check.h"
 #include "util/parallel.h"
 #include "util/timer.h"
 
@@ -39,8 +40,8 @@ void ForEachRowBlock(int64_t rows, const std::function<void(int64_t begin, int64
 // size would each be zeroed and page-faulted in.
 struct BlockScratch {
   std::vector<float> hidden, embedding, generator, features, linear, logits, projected;
-  // Pooled point rows: a chunk of candidate rows and their scores against a run's rows.
-  std::vector<float> gathered, scores;
+  // Pooled point rows: a chunk of gathered candidate rows.
+  std::vector<float> gathered;
   // Where each child's candidates in the chunk begin (the last entry: the chunk's end), and that
   // child: candidates come in rank order, so a child's points are one run of the chunk.
   std::vector<uint32_t> segment_starts;
@@ -81,7 +82,7 @@ class CpuForwardPass {
  public:
   CpuForwardPass(const Network& network, const DescriptorMatrix& descriptors,
                  const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                 const Visibility* visibility_mask)
+                 const Visibility* visibility_mask, DescriptorLayerCache& cache)
       : shape_(network.shape()),
         image_indices_(image_indices),
         tree_(tree),
@@ -95,7 +96,7 @@ class CpuForwardPass {
                                     shape_.levels)),
         scaled_descriptors_(descriptors),
         parent_node_(num_rows_, 0),
-        descriptor_features_(num_descriptors_ * channels_),
+        cache_(cache),
         keyed_rows_(num_rows_) {
     // L2-normalized rows, scaled by each level's input scale as the levels ask for it.
     for (int64_t i = 0; i < num_descriptors_; ++i) {
@@ -118,6 +119,7 @@ class CpuForwardPass {
       if (tree_.LevelHasChoice(depth)) {
         LevelWeights weights = level->CpuWeights();
         weights.point_rows = point_rows_;
+        descriptor_features_ = DescriptorFeatures(weights, depth, level->NumConditionedLayers());
         RunLevel(weights, depth, level->NumConditionedLayers());
       } else {
         SkipLevel(depth);
@@ -142,8 +144,21 @@ class CpuForwardPass {
     }
   }
 
+  // The level's descriptor-only layers, from the cache or computed into it.
+  const float* DescriptorFeatures(const LevelWeights& weights, int depth, int layers) {
+    if (weights.input_scale != current_scale_) {
+      scaled_descriptors_ *= weights.input_scale / current_scale_;
+      current_scale_ = weights.input_scale;
+    }
+    std::vector<float>& features = cache_.levels[depth];
+    if (features.empty()) {
+      features.resize(num_descriptors_ * channels_);
+      RunDescriptorLayers(weights, layers, features.data());
+    }
+    return features.data();
+  }
+
   void RunLevel(const LevelWeights& weights, int depth, int layers) {
-    RunDescriptorLayers(weights, layers);
     SortRowsByConditioning(depth);
     ForEachRowBlock(num_rows_, [&](int64_t begin, int64_t end) {
       thread_local BlockScratch scratch;
@@ -157,11 +172,7 @@ class CpuForwardPass {
   }
 
   // The trunk and the first conditioned layer's W h + b depend on the descriptor only.
-  void RunDescriptorLayers(const LevelWeights& weights, int layers) {
-    if (weights.input_scale != current_scale_) {
-      scaled_descriptors_ *= weights.input_scale / current_scale_;
-      current_scale_ = weights.input_scale;
-    }
+  void RunDescriptorLayers(const LevelWeights& weights, int layers, float* features) {
     const int64_t descriptor_dim = shape_.descriptor_dim;
     multiply_adds_ += num_descriptors_ * (descriptor_dim * trunk_channels_ +
                                           trunk_channels_ * channels_ + channels_ * channels_);
@@ -178,7 +189,7 @@ class CpuForwardPass {
                             scratch.linear.data());
       dense_kernels::Linear(scratch.linear.data(), block_rows, channels_,
                             weights.conditioned_weights[0], weights.conditioned_biases[0],
-                            channels_, false, descriptor_features_.data() + begin * channels_);
+                            channels_, false, features + begin * channels_);
     });
   }
 
@@ -248,7 +259,7 @@ class CpuForwardPass {
                         BlockScratch& scratch) {
     const int64_t block_rows = end - begin;
     multiply_adds_ += block_rows * (layers - 1) * channels_ * channels_;
-    dense_kernels::ModulateElu(descriptor_features_.data(), scratch.descriptor_of_row.data(),
+    dense_kernels::ModulateElu(descriptor_features_, scratch.descriptor_of_row.data(),
                                scratch.gammas[0].data(), scratch.betas[0].data(),
                                scratch.run_of_row.data(), block_rows, channels_,
                                scratch.features.data());
@@ -317,15 +328,16 @@ class CpuForwardPass {
   }
 
   // Each run of rows shares its image and parent, hence its candidate points: their rows are
-  // gathered a chunk at a time and scored against the run's projections, and each child keeps
-  // the best score of its points (PooledPointLogits, Pooling::kMax).
+  // gathered a chunk at a time, and each child keeps the best score of its points
+  // (PooledPointLogits, Pooling::kMax), scored and maximized in one pass
+  // (dense_kernels::PooledMaxLogits): a score matrix written, biased and reread took most of an
+  // id-free pass at aachen scale.
   void PooledLogits(const float* point_rows, int depth, int64_t begin, int64_t end,
                     BlockScratch& scratch) {
     constexpr size_t kChunk = 512;
     const int64_t branching = shape_.branching;
     const int64_t row_width = node_output_dim_ + 1;
     scratch.gathered.resize(kChunk * row_width);
-    scratch.scores.resize(kRowBlock * kChunk);
     std::fill_n(scratch.logits.data(), (end - begin) * branching,
                 -std::numeric_limits<float>::infinity());
     for (int64_t i = begin; i < end;) {
@@ -338,51 +350,52 @@ class CpuForwardPass {
                      : candidates_->Under(candidates_->SlotOf(row / num_descriptors_),
                                           static_cast<uint32_t>(parent));
       const int64_t run_rows = run_end - i;
+      float* run_logits = scratch.logits.data() + (i - begin) * branching;
       for (size_t first = 0; first < span.size; first += kChunk) {
         const size_t count = std::min(kChunk, span.size - first);
-        scratch.segment_starts.clear();
-        scratch.segment_groups.clear();
         // A whole range of ranks (every point under the parent) is already contiguous in the
         // table; only an image's list of ranks needs gathering.
         const bool contiguous = span.ranks == nullptr;
-        const float* rows =
-            contiguous ? point_rows + (span.first + first) * row_width : scratch.gathered.data();
-        for (size_t m = 0; m < count; ++m) {
-          const uint32_t rank = span[first + m];
-          if (!contiguous) {
-            std::copy_n(point_rows + rank * row_width, row_width,
-                        scratch.gathered.data() + m * row_width);
-          }
-          const uint8_t group = candidates_->LabelOfRank(rank, depth);
-          if (m == 0 || group != scratch.segment_groups.back()) {
-            scratch.segment_starts.push_back(static_cast<uint32_t>(m));
-            scratch.segment_groups.push_back(group);
-          }
-        }
-        scratch.segment_starts.push_back(static_cast<uint32_t>(count));
+        const float* rows = contiguous ? point_rows + (span.first + first) * row_width
+                                       : GatherRows(point_rows, span, first, count, scratch);
+        FindSegments(span, first, count, depth, scratch);
         multiply_adds_ += run_rows * static_cast<int64_t>(count) * node_output_dim_;
-        dense_kernels::NodeLogits(scratch.projected.data() + (i - begin) * node_output_dim_,
-                                  run_rows, node_output_dim_, rows, static_cast<int64_t>(count),
-                                  static_cast<int64_t>(count), scratch.scores.data());
-        // Each child's best score over its run of the chunk, a contiguous (vectorized) maximum:
-        // scattering score by score into the child's logit took half of an id-free pass at
-        // aachen scale.
-        for (int64_t r = 0; r < run_rows; ++r) {
-          float* logits = scratch.logits.data() + (i - begin + r) * branching;
-          const float* scores = scratch.scores.data() + r * count;
-          for (size_t k = 0; k + 1 < scratch.segment_starts.size(); ++k) {
-            const uint32_t start = scratch.segment_starts[k];
-            const float best =
-                dense_kernels::MaxOf(scores + start, scratch.segment_starts[k + 1] - start);
-            logits[scratch.segment_groups[k]] = std::max(logits[scratch.segment_groups[k]], best);
-          }
-        }
+        dense_kernels::PooledMaxLogits(
+            scratch.projected.data() + (i - begin) * node_output_dim_, run_rows, node_output_dim_,
+            rows, scratch.segment_starts.data(), scratch.segment_groups.data(),
+            static_cast<int64_t>(scratch.segment_groups.size()), branching, run_logits);
       }
       // A row without candidates (its path left the tree) keeps finite logits.
-      if (span.size == 0)
-        std::fill_n(scratch.logits.data() + (i - begin) * branching, run_rows * branching, 0.0f);
+      if (span.size == 0) std::fill_n(run_logits, run_rows * branching, 0.0f);
       i = run_end;
     }
+  }
+
+  // The rows of candidates [first, first + count) of the span, copied side by side.
+  const float* GatherRows(const float* point_rows, const CandidateSpan& span, size_t first,
+                          size_t count, BlockScratch& scratch) const {
+    const int64_t row_width = node_output_dim_ + 1;
+    for (size_t m = 0; m < count; ++m) {
+      std::copy_n(point_rows + span[first + m] * row_width, row_width,
+                  scratch.gathered.data() + m * row_width);
+    }
+    return scratch.gathered.data();
+  }
+
+  // Candidates come in rank order, so a child's points are one run of the chunk: where each run
+  // starts (the last entry: the chunk's end) and its child.
+  void FindSegments(const CandidateSpan& span, size_t first, size_t count, int depth,
+                    BlockScratch& scratch) const {
+    scratch.segment_starts.clear();
+    scratch.segment_groups.clear();
+    for (size_t m = 0; m < count; ++m) {
+      const uint8_t group = candidates_->LabelOfRank(span[first + m], depth);
+      if (m == 0 || group != scratch.segment_groups.back()) {
+        scratch.segment_starts.push_back(static_cast<uint32_t>(m));
+        scratch.segment_groups.push_back(group);
+      }
+    }
+    scratch.segment_starts.push_back(static_cast<uint32_t>(count));
   }
 
   void ChooseLabels(int depth, int64_t begin, int64_t end, BlockScratch& scratch) {
@@ -418,8 +431,10 @@ class CpuForwardPass {
   const float* point_rows_ = nullptr;
   // The tree node of every row's label prefix (-1 once a path leaves the tree).
   std::vector<int64_t> parent_node_;
-  // The first conditioned layer's W h + b of every descriptor, [N, C].
-  std::vector<float> descriptor_features_;
+  // Every level's first conditioned layer's W h + b of every descriptor, [N, C], and the current
+  // level's.
+  DescriptorLayerCache& cache_;
+  const float* descriptor_features_ = nullptr;
   // (image and label prefix, row), sorted.
   std::vector<std::pair<int64_t, int64_t>> keyed_rows_;
   // The level's multiply-adds so far, from every compute thread.
@@ -430,8 +445,21 @@ class CpuForwardPass {
 
 PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& descriptors,
                               const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                              const Visibility* visibility_mask) {
-  return CpuForwardPass(network, descriptors, image_indices, tree, visibility_mask).Run(network);
+                              const Visibility* visibility_mask, DescriptorLayerCache* cache) {
+  DescriptorLayerCache own;
+  if (cache == nullptr) {
+    cache = &own;
+  } else if (cache->descriptors != nullptr &&
+             (cache->descriptors != descriptors.data() || cache->rows != descriptors.rows() ||
+              cache->cols != descriptors.cols())) {
+    ThrowInvalidArgument("Predict: the descriptor layer cache was filled from other descriptors");
+  }
+  cache->descriptors = descriptors.data();
+  cache->rows = descriptors.rows();
+  cache->cols = descriptors.cols();
+  cache->levels.resize(network.shape().levels);
+  return CpuForwardPass(network, descriptors, image_indices, tree, visibility_mask, *cache)
+      .Run(network);
 }
 
 }  // namespace hscloc

@@ -178,6 +178,40 @@ TEST(NetworkCpuInferenceTest, ThreadCountDoesNotChangeResults) {
   EXPECT_EQ(one.confidences, three.confidences);
 }
 
+// One query's calls (its candidates, the votes without an image id, the votes' candidates) share
+// the descriptor-only layers: the same predictions as without the cache, less work after the
+// first call, and a cache of other descriptors refused.
+TEST(NetworkCpuInferenceTest, DescriptorLayerCacheGivesTheSamePredictionsWithLessWork) {
+  const RandomMap fixture = MakeRandomMap(11);
+  const DescriptorMatrix descriptors = RandomDescriptors(300, fixture.shape.descriptor_dim, 6);
+  for (const NetworkOptions& options : testing_support::HeadVariants(
+           testing_support::SmallOptions(), fixture.shape.descriptor_dim)) {
+    const Network network =
+        testing_support::WithRandomProjections(Network(fixture.shape, options, 12), 13);
+    DescriptorLayerCache cache;
+    const auto total = [](const PointPredictions& predictions) {
+      return std::accumulate(predictions.level_flops.begin(), predictions.level_flops.end(), 0.0);
+    };
+    for (const std::vector<uint32_t>& images :
+         {std::vector<uint32_t>{1, 2, 3}, {network.NoImageIndex()}, {4, 5}}) {
+      const PointPredictions plain = network.Predict(descriptors, images, fixture.tree);
+      const bool first = cache.levels.empty();
+      const PointPredictions cached =
+          network.Predict(descriptors, images, fixture.tree, nullptr, &cache);
+      EXPECT_EQ(cached.labels, plain.labels);
+      EXPECT_EQ(cached.confidences, plain.confidences);
+      if (first) {
+        EXPECT_EQ(total(cached), total(plain));
+      } else {
+        EXPECT_LT(total(cached), total(plain)) << "the descriptor layers ran again";
+      }
+    }
+    const DescriptorMatrix others = RandomDescriptors(300, fixture.shape.descriptor_dim, 7);
+    EXPECT_THROW(network.Predict(others, {1}, fixture.tree, nullptr, &cache),
+                 std::invalid_argument);
+  }
+}
+
 TEST(NetworkCpuInferenceTest, EmptyQueriesGiveEmptyPredictions) {
   const RandomMap fixture = MakeRandomMap(11);
   const Network network(fixture.shape, NetworkOptions{32, 16, 1}, 8);

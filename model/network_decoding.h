@@ -113,6 +113,6 @@ int ComputeThreads();
 // Network::Predict on the CPU kernels (model/dense_kernels.h); inputs already checked.
 PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& descriptors,
                               const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                              const Visibility* visibility_mask);
+                              const Visibility* visibility_mask, DescriptorLayerCache* cache);
 
 }  // namespace hscloc
