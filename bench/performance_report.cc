@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "bench/bench_support.h"
+#include "localization/stage_timings.h"
 
 namespace hscloc::bench {
 namespace {
@@ -240,6 +241,33 @@ std::string SeedsTable(const json& peers) {
                      all_within, seeds.size(), median_within, seeds.size());
 }
 
+// Where HSC's time goes on a preset's queries: per stage, then by class of query.
+std::string StageTimingsTable(const json& peers) {
+  if (!peers.contains("hsc") || !peers["hsc"].contains("timings")) return "";
+  const json& timings = peers["hsc"]["timings"];
+  std::string table = fmt::format(
+      "Where HSC's time goes on {} (ms per query, each query on one core, two at a time; votes is "
+      "part of retrieval, refine part of pose):\n\n| stage | mean | p50 | p95 | max |\n| --- | --- "
+      "| --- | --- | --- |\n",
+      peers["set"].get<std::string>());
+  for (const StageField& field : kStageFields) {
+    const json& stage = timings["stages"][std::string(field.name)];
+    table += fmt::format("| {} | {:.1f} | {:.1f} | {:.1f} | {:.1f} |\n", field.name,
+                         stage["mean"].get<double>(), stage["p50"].get<double>(),
+                         stage["p95"].get<double>(), stage["max"].get<double>());
+  }
+  table +=
+      "\n| queries | count | p50 | p95 | max | among the slowest 5 % |\n| --- | --- | --- | --- | "
+      "--- | --- |\n";
+  for (const json& entry : timings["classes"]) {
+    table += fmt::format("| {} | {} | {:.0f} ms | {:.0f} ms | {:.0f} ms | {} |\n",
+                         entry["class"].get<std::string>(), entry["queries"].get<int>(),
+                         entry["p50"].get<double>(), entry["p95"].get<double>(),
+                         entry["max"].get<double>(), entry["in_slowest_5_percent"].get<int>());
+  }
+  return table + "\n";
+}
+
 std::string PeersTable(const json& peers) {
   // The network's held-out point accuracy beside the nearest-class-mean matcher's, where measured.
   std::string held_out;
@@ -429,7 +457,7 @@ std::string WriteReport(const json& results, const fs::path& report_path) {
         marked["set"] = fmt::format("{} (measured {})", peers["set"].get<std::string>(),
                                     row["measured"].get<std::string>());
       }
-      md << PeersTable(marked);
+      md << PeersTable(marked) << StageTimingsTable(marked);
     }
   }
 

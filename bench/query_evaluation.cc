@@ -1,5 +1,8 @@
 #include "bench/query_evaluation.h"
 
+#include <map>
+#include <string>
+
 #include "model/network.h"
 #include "util/parallel.h"
 #include "util/random.h"
@@ -33,6 +36,7 @@ Evaluation Evaluate(const Localizer& localizer, const LocalizerOptions& options,
   SetComputeThreads(1);
   Evaluation evaluation;
   evaluation.results.resize(queries.size());
+  for (const LocalizationQuery& query : queries) evaluation.keypoints.push_back(query.keypoints.rows());
   ParallelFor(queries.size(), 0, [&](size_t begin, size_t end) {
     for (size_t i = begin; i < end; ++i) {
       evaluation.results[i] = localizer.Localize(queries[i], options);
@@ -60,7 +64,57 @@ json AccuracyJson(const Evaluation& evaluation) {
           {"median_position", evaluation.accuracy.median_position},
           {"median_rotation_deg", evaluation.accuracy.median_rotation_deg},
           {"ms_per_query_one_thread", Mean(total_ms)},
+          {"timings", StageTimingsJson(evaluation)},
           {"per_query", PerQueryErrorsJson(evaluation.accuracy)}};
+}
+
+namespace {
+
+std::string QueryClass(const PoseResult& result, int64_t keypoints) {
+  const std::string rounds = result.timings.rounds > 1 ? "votes' round" : "one round";
+  const std::string size = keypoints < 1000   ? "< 1000 keypoints"
+                           : keypoints < 3000 ? "1000-2999 keypoints"
+                                              : ">= 3000 keypoints";
+  return rounds + ", " + size;
+}
+
+json Percentiles(const std::vector<double>& ms) {
+  return {{"mean", Mean(ms)},
+          {"p50", Percentile(ms, 0.5)},
+          {"p95", Percentile(ms, 0.95)},
+          {"max", Percentile(ms, 1.0)}};
+}
+
+}  // namespace
+
+json StageTimingsJson(const Evaluation& evaluation) {
+  StageTimingAccumulator timings;
+  for (const PoseResult& result : evaluation.results) timings.Add(result.timings);
+  json stages = json::object();
+  for (const StageField& field : kStageFields) {
+    std::vector<double> ms;
+    for (const StageTimings& one : timings.all()) ms.push_back(one.*field.milliseconds);
+    stages[std::string(field.name)] = Percentiles(ms);
+  }
+  // The slowest 5 % (at least one query), and each class's share of them.
+  const double tail_from = timings.count() == 0 ? 0 : timings.TotalPercentileMs(0.95);
+  std::map<std::string, std::vector<double>> by_class;
+  std::map<std::string, int> in_tail;
+  for (size_t i = 0; i < evaluation.results.size(); ++i) {
+    const PoseResult& result = evaluation.results[i];
+    const std::string name = QueryClass(result, evaluation.keypoints[i]);
+    by_class[name].push_back(result.timings.total_ms);
+    in_tail[name] += result.timings.total_ms >= tail_from;
+  }
+  json classes = json::array();
+  for (const auto& [name, ms] : by_class) {
+    json entry = Percentiles(ms);
+    entry["class"] = name;
+    entry["queries"] = ms.size();
+    entry["in_slowest_5_percent"] = in_tail[name];
+    classes.push_back(entry);
+  }
+  return {{"stages", stages}, {"classes", classes}};
 }
 
 json PerQueryErrorsJson(const ConditionAccuracy& accuracy) {

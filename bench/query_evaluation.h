@@ -20,6 +20,7 @@ LocalizationQuery WithKeypointCount(const LocalizationQuery& query, int64_t coun
 struct Evaluation {
   ConditionAccuracy accuracy;
   std::vector<PoseResult> results;
+  std::vector<int64_t> keypoints;  // each query's
 };
 
 // Localizes the queries, each on one thread and several at a time (as `hscloc localize` does),
@@ -30,6 +31,11 @@ Evaluation Evaluate(const Localizer& localizer, const LocalizerOptions& options,
 
 // Accuracy per threshold, medians, the mean time per query, and each query's errors.
 nlohmann::json AccuracyJson(const Evaluation& evaluation);
+
+// Where the time goes: each stage's mean, p50, p95 and max milliseconds per query ("stages"), and
+// the queries by class (with or without the votes' round, by keypoint count) with their p50, p95
+// and max, and how many of the slowest 5 % each holds ("classes").
+nlohmann::json StageTimingsJson(const Evaluation& evaluation);
 
 // Each query's name and errors (position, rotation_deg; null where it has no pose), in order.
 nlohmann::json PerQueryErrorsJson(const ConditionAccuracy& accuracy);
