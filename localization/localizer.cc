@@ -337,9 +337,14 @@ std::vector<Eigen::Vector3d> Localizer::PointPositions(const CandidateMatches& m
 }
 
 AbsolutePoseResult Localizer::Pose(const LocalizationQuery& query, const CandidateMatches& matches,
-                                   const LocalizerOptions& options) const {
+                                   const LocalizerOptions& options,
+                                   const std::vector<LocalizationCandidate>& candidates) const {
+  AbsolutePoseOptions pose_options = options.pose;
+  // Only a pose with more inliers than the best so far can win: RANSAC need not sample for less.
+  const int best = Choose(candidates);
+  if (best >= 0) pose_options.inliers_to_beat = candidates[best].num_inliers;
   return EstimateAbsolutePose(query.camera, KeypointPixels(query, matches), PointPositions(matches),
-                              options.pose);
+                              pose_options);
 }
 
 void Localizer::RefineRoundWinner(const LocalizationQuery& query, const LocalizerOptions& options,
@@ -490,7 +495,7 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
       candidates[k].evaluated = true;  // matched, and its matches may still join the pool
       continue;
     }
-    AbsolutePoseResult pose = Pose(query, evaluation.matches[k], options);
+    AbsolutePoseResult pose = Pose(query, evaluation.matches[k], options, candidates);
     LocalizationCandidate& candidate = candidates[k];
     candidate.evaluated = true;
     candidate.pose_found = pose.success;

@@ -214,8 +214,11 @@ class Localizer {
                                       size_t begin, size_t end, const LocalizerOptions& options,
                                       DescriptorLayerCache& network_cache) const;
   CandidateMatches FilterVisible(uint32_t image_index, CandidateMatches matches) const;
+  // RANSAC and refinement of one candidate's matches; a pose that cannot beat the best of
+  // `candidates` so far is not sampled for (AbsolutePoseOptions::inliers_to_beat).
   AbsolutePoseResult Pose(const LocalizationQuery& query, const CandidateMatches& matches,
-                          const LocalizerOptions& options) const;
+                          const LocalizerOptions& options,
+                          const std::vector<LocalizationCandidate>& candidates) const;
   // The pose of the round's best candidate (the round's candidates start at `begin`) refined once
   // more, each point now taking the rival keypoint the pose reprojects nearest (rival_matches.h);
   // kept when it has at least as many inliers.

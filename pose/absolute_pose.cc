@@ -45,6 +45,7 @@ SolverOutcome RunLoRansacSolver(std::vector<NormalizedCorrespondence> correspond
   ransac_options.stop_past_inliers = options.stop_sampling_past_inliers;
   ransac_options.confidence = options.confidence;
   ransac_options.local_optimization = options.local_optimization;
+  ransac_options.inliers_to_beat = options.inliers_to_beat;
   AbsolutePoseEstimator estimator(correspondences, options.max_reprojection_error_px);
   const RansacOutcome<Rigid3d> ransac = RunLoRansac(estimator, ransac_options, random);
   SolverOutcome outcome;
@@ -205,6 +206,10 @@ void AbsolutePoseOptions::Check() const {
   if (max_iterations < 1) {
     ThrowInvalidArgument("AbsolutePoseOptions.max_iterations is {}, must be at least 1",
                          max_iterations);
+  }
+  if (inliers_to_beat < 0) {
+    ThrowInvalidArgument("AbsolutePoseOptions.inliers_to_beat is {}, must be >= 0 (0: none)",
+                         inliers_to_beat);
   }
   if (stop_sampling_past_inliers < 0) {
     ThrowInvalidArgument(

@@ -47,6 +47,12 @@ struct AbsolutePoseOptions {
   double confidence = 0.9999;
   // Fewest inliers of an accepted pose; at least 4, since any 3 correspondences fit some pose.
   int min_inliers = 12;
+  // Inliers that a pose must exceed to be of use (another candidate's pose has them); 0: none.
+  // The adaptive bound then assumes at least that inlier ratio: sampling stops once a pose with
+  // more inliers would have been found with `confidence`, as it stops once one better than the
+  // best so far would have (a candidate that cannot win is not sampled 5000 times). The LO-RANSAC
+  // solver only.
+  int inliers_to_beat = 0;
   Solver solver = Solver::kLoRansac;
   // Refit each new best hypothesis to its inliers during RANSAC (LO-RANSAC).
   bool local_optimization = true;

@@ -206,6 +206,29 @@ TEST(AbsolutePose, EarlyStopEndsSamplingWhenInliersArePlentiful) {
   EXPECT_EQ(full.num_iterations, options.max_iterations);
 }
 
+// With a count to beat, sampling assumes at least that inlier ratio: a set that holds fewer
+// inliers is given up on after the samples that would have found more, and a set that holds more
+// still finds them.
+TEST(AbsolutePose, InliersToBeatEndSamplingOnSetsThatCannotBeatThem) {
+  Random random(16);
+  const Camera camera = RandomCamera("SIMPLE_RADIAL", random);
+  AbsolutePoseOptions options;
+  options.stop_sampling_past_inliers = 0;
+  const Correspondences weak = MakeCorrespondences(camera, 30, 570, 1.0, random);  // 5 %
+  const AbsolutePoseResult alone = Estimate(weak, options);
+  EXPECT_EQ(alone.num_iterations, options.max_iterations);
+  options.inliers_to_beat = 150;  // a quarter of the set: 1 / 0.25^3 = 64 samples per good one
+  const AbsolutePoseResult against = Estimate(weak, options);
+  EXPECT_LT(against.num_iterations, 1500);
+  EXPECT_LE(against.num_inliers, 150);
+
+  const Correspondences strong = MakeCorrespondences(camera, 300, 300, 1.0, random);
+  const AbsolutePoseResult beats = Estimate(strong, options);
+  ASSERT_TRUE(beats.success) << beats.failure_reason;
+  EXPECT_GT(beats.num_inliers, 150);
+  EXPECT_THAT(beats.cam_from_world, PoseNear(strong.cam_from_world, 0.05, 0.25));
+}
+
 TEST(AbsolutePose, AdaptiveBoundEndsSamplingWithoutOutliers) {
   Random random(9);
   const Correspondences data =
@@ -357,6 +380,7 @@ TEST(AbsolutePose, BadInputThrowsNamingTheField) {
        [](AbsolutePoseOptions& o) { o.stop_sampling_past_inliers = -1; }},
       {"confidence", [](AbsolutePoseOptions& o) { o.confidence = 1.5; }},
       {"min_inliers", [](AbsolutePoseOptions& o) { o.min_inliers = 3; }},
+      {"inliers_to_beat", [](AbsolutePoseOptions& o) { o.inliers_to_beat = -1; }},
       {"solver", [](AbsolutePoseOptions& o) { o.solver = static_cast<Solver>(7); }},
       {"loss_scale_px", [](AbsolutePoseOptions& o) { o.refinement.loss_scale_px = -1; }},
   };

@@ -33,6 +33,9 @@ struct RansacOptions {
   int stop_past_inliers = 0;
   double confidence = 0.0;
   bool local_optimization = false;
+  // Only a hypothesis with more inliers than this is of use; the adaptive bound assumes at least
+  // that inlier ratio from the start. 0: none.
+  int inliers_to_beat = 0;
 };
 
 template <typename Model>
@@ -73,7 +76,16 @@ RansacOutcome<typename Estimator::Model> RunLoRansac(Estimator& estimator,
   RansacOutcome<typename Estimator::Model> outcome;
   const int num_data = estimator.NumData();
   if (num_data < Estimator::kSampleSize) return outcome;
-  int iteration_bound = options.max_iterations;
+  // The inlier ratio a useful hypothesis has at least, and the samples that find one with the
+  // options' confidence.
+  const double useful_ratio = static_cast<double>(options.inliers_to_beat + 1) / num_data;
+  const auto iterations_for = [&](double inlier_ratio) {
+    if (options.inliers_to_beat > 0) inlier_ratio = std::max(inlier_ratio, useful_ratio);
+    return RequiredIterations(std::pow(std::min(inlier_ratio, 1.0), Estimator::kSampleSize) *
+                                  estimator.RightPoseAcceptance(),
+                              options.confidence, options.max_iterations);
+  };
+  int iteration_bound = options.inliers_to_beat > 0 ? iterations_for(0.0) : options.max_iterations;
   while (outcome.num_iterations < iteration_bound) {
     ++outcome.num_iterations;
     const auto sample = DrawSample<Estimator::kSampleSize>(num_data, random);
@@ -85,10 +97,8 @@ RansacOutcome<typename Estimator::Model> RunLoRansac(Estimator& estimator,
       outcome.best = {models.cam_from_world[i], score};
       if (options.local_optimization) outcome.best = estimator.LocalOptimize(outcome.best);
       estimator.OnNewBest(outcome.best.score);
-      const double inlier_ratio = static_cast<double>(outcome.best.score.num_inliers) / num_data;
-      iteration_bound = RequiredIterations(
-          std::pow(inlier_ratio, Estimator::kSampleSize) * estimator.RightPoseAcceptance(),
-          options.confidence, options.max_iterations);
+      iteration_bound =
+          iterations_for(static_cast<double>(outcome.best.score.num_inliers) / num_data);
     }
     if (options.stop_past_inliers > 0 &&
         outcome.best.score.num_inliers > options.stop_past_inliers) {
