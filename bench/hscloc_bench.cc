@@ -349,13 +349,23 @@ int Run(const BenchOptions& options) {
     // (Of the random appearance: the real one's row stands beside it.)
     const bool city = options.scale_only == "city" && options.appearance == "random";
     json city_extras;
+    // The network's floor is this machine's: the report's header may describe another.
+    json machine = previous["machine"];
+    if (city) {
+      Step("fp32 GEMM peak (libtorch, hscloc kernels) of this machine");
+      machine = MeasureGemmPeaks();
+      machine["cpu"] = CpuModel();
+    }
     json row = MeasureMap(map, FullRunQueriesPerCondition(options.scale_only),
-                          city ? &city_extras : nullptr, previous["machine"], city);
+                          city ? &city_extras : nullptr, machine, city);
     if (city) {
       city_extras["measured"] = Today();
+      city_extras["measured_cpu"] = CpuModel();
+      city_extras["machine"] = machine;
       previous["city"] = city_extras;
     }
     row["measured"] = Today();
+    row["measured_cpu"] = CpuModel();
     // In its place among the presets (small, city, aachen), or last when it had none.
     json scale = json::array();
     bool replaced = false;

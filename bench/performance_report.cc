@@ -241,6 +241,21 @@ std::string SeedsTable(const json& peers) {
                      all_within, seeds.size(), median_within, seeds.size());
 }
 
+// "measured <date>" for a row measured apart from the run, with its CPU where that is not the
+// header's; empty for a row of the run itself.
+std::string Capitalized(std::string text) {
+  if (!text.empty()) text[0] = static_cast<char>(std::toupper(static_cast<unsigned char>(text[0])));
+  return text;
+}
+
+std::string MeasuredNote(const json& results, const json& row) {
+  if (!row.contains("measured")) return "";
+  std::string note = "measured " + row["measured"].get<std::string>();
+  const std::string cpu = row.value("measured_cpu", std::string());
+  if (!cpu.empty() && cpu != results["machine"].value("cpu", std::string())) note += " on " + cpu;
+  return note;
+}
+
 // Where HSC's time goes on a preset's queries: per stage, then by class of query.
 std::string StageTimingsTable(const json& peers) {
   if (!peers.contains("hsc") || !peers["hsc"].contains("timings")) return "";
@@ -299,8 +314,15 @@ std::string PeersTable(const json& peers) {
 namespace {
 
 // The city's targets, each beside its measurement.
+// The peaks the city's network was measured against: its own machine's where it was measured
+// apart from the run.
+const json& CityPeaks(const json& results) {
+  const json& city = results["city"];
+  return city.contains("machine") ? city["machine"] : results["machine"];
+}
+
 void WriteTargets(const json& results, std::ostringstream& md) {
-  const json& peaks = results["machine"];
+  const json& peaks = CityPeaks(results);
   const json& city = results["city"];
   md << "## Targets (city preset, N = 2000 keypoints, K = 10 images, exhaustive)\n\n"
         "| target | measured | met |\n| --- | --- | --- |\n";
@@ -336,13 +358,21 @@ void WriteTargets(const json& results, std::ostringstream& md) {
 
 // The machine's GEMM peak, and the network against its floor.
 void WriteMachineLimit(const json& results, std::ostringstream& md) {
-  const json& peaks = results["machine"];
+  const json& peaks = CityPeaks(results);
   const json& city = results["city"];
   md << "## The machine's limit\n\n| fp32 GEMM, 2048^3, all cores | GFLOPS |\n| --- | --- |\n";
-  md << fmt::format("| libtorch (OpenBLAS) | {:.1f} |\n| hscloc kernels (Eigen, {}) | {:.1f} |\n\n",
-                    peaks["libtorch_gflops"].get<double>(),
-                    peaks["kernel_instruction_sets"].get<std::string>(),
-                    peaks["eigen_kernels_gflops"].get<double>());
+  const auto peak_rows = [&](const json& machine, const std::string& where) {
+    md << fmt::format(
+        "| libtorch (OpenBLAS){} | {:.1f} |\n| hscloc kernels (Eigen, {}){} | {:.1f} |\n", where,
+        machine["libtorch_gflops"].get<double>(),
+        machine["kernel_instruction_sets"].get<std::string>(), where,
+        machine["eigen_kernels_gflops"].get<double>());
+  };
+  peak_rows(results["machine"], "");
+  if (city.contains("machine")) {
+    peak_rows(city["machine"], ", " + MeasuredNote(results, city) + " with the city");
+  }
+  md << "\n";
   if (city.contains("network")) {
     const json& network = city["network"];
     // Numbers measured before the kernels counted their work hold the shapes' count only.
@@ -384,8 +414,8 @@ void WriteCityLatency(const json& results, std::ostringstream& md) {
   if (!city.contains("network")) return;
   md << "## End-to-end latency per stage (city, all cores for one query, ms, p50 / p95)\n\n";
   if (city.contains("measured")) {
-    md << fmt::format("Measured on {} with the city's row (`--scale-only city`).\n\n",
-                      city["measured"].get<std::string>());
+    md << fmt::format("{} with the city's row (`--scale-only city`).\n\n",
+                      Capitalized(MeasuredNote(results, city)));
   }
   md << "| keypoints | K | mode | retrieval | network | visibility | pose | total | localized "
         "|\n| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
@@ -466,8 +496,8 @@ void WritePeers(const json& results, std::ostringstream& md) {
     for (const auto& [condition, peers] : row["peers"].items()) {
       json marked = peers;
       if (row.contains("measured")) {
-        marked["set"] = fmt::format("{} (measured {})", peers["set"].get<std::string>(),
-                                    row["measured"].get<std::string>());
+        marked["set"] =
+            fmt::format("{} ({})", peers["set"].get<std::string>(), MeasuredNote(results, row));
       }
       md << PeersTable(marked) << StageTimingsTable(marked);
     }
@@ -484,7 +514,7 @@ void WriteCostAgainstMapSize(const json& results, std::ostringstream& md) {
     md << fmt::format(
         "| {}{} | {} | {} | {} | {:.0f} s | {:.0f} MB | {:.0f} s | {:.0f} MB | {} | {:.0f} ms |\n",
         row["preset"].get<std::string>(),
-        row.contains("measured") ? " (measured " + row["measured"].get<std::string>() + ")" : "",
+        row.contains("measured") ? " (" + MeasuredNote(results, row) + ")" : "",
         row["images"].get<int64_t>(), row["points"].get<int64_t>(),
         row["observations"].get<int64_t>(), row["build_map_s"].get<double>(),
         row["build_map_peak_mb"].get<double>(), row["train_s"].get<double>(),
