@@ -16,13 +16,15 @@ namespace hscloc {
 // `refine_ms` of `pose_ms`.
 struct StageTimings {
   double retrieval_ms = 0;  // the global descriptor and its index, and the votes' round
-  double votes_ms = 0;      // of retrieval_ms: the network without an image id and the vote count
   double match_ms = 0;
   double visibility_ms = 0;
-  double pose_ms = 0;    // RANSAC per candidate and the refinements after it
-  double refine_ms = 0;  // of pose_ms: the round winner's rival keypoints and the pooled pose
+  double pose_ms = 0;  // RANSAC per candidate and the refinements after it
   double total_ms = 0;
-  int rounds = 0;  // retrieval rounds evaluated: 1, or 2 when the votes' round ran
+  // The parts, after the stages so that {retrieval, match, visibility, pose, total} still
+  // initializes the stages.
+  double votes_ms = 0;   // of retrieval_ms: the network without an image id and the vote count
+  double refine_ms = 0;  // of pose_ms: the round winner's rival keypoints and the pooled pose
+  int rounds = 0;        // retrieval rounds evaluated: 1, or 2 when the votes' round ran
 };
 
 // The timings by name, in the order of the query path, for tables and CSV columns.
