@@ -36,7 +36,8 @@ Evaluation Evaluate(const Localizer& localizer, const LocalizerOptions& options,
   SetComputeThreads(1);
   Evaluation evaluation;
   evaluation.results.resize(queries.size());
-  for (const LocalizationQuery& query : queries) evaluation.keypoints.push_back(query.keypoints.rows());
+  for (const LocalizationQuery& query : queries)
+    evaluation.keypoints.push_back(query.keypoints.rows());
   ParallelFor(queries.size(), 0, [&](size_t begin, size_t end) {
     for (size_t i = begin; i < end; ++i) {
       evaluation.results[i] = localizer.Localize(queries[i], options);
