@@ -12,6 +12,7 @@
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
+#include <random>
 #include <set>
 #include <thread>
 
@@ -33,17 +34,26 @@ namespace fs = std::filesystem;
 using testing::HsclocProcess;
 using testing::ReadText;
 
-// A loopback TCP port free now; a killed broker restarts on the same one.
+// A loopback TCP port free now, below the kernel's range of ephemeral ports, so that a killed
+// broker restarts on it: no outgoing connection (a test's, or a worker's reconnecting to this very
+// port) is ever given it meanwhile, nor connects to itself on it.
 int FreePort() {
-  const int probe = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in address{};
-  address.sin_family = AF_INET;
-  address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t size = sizeof(address);
-  bind(probe, reinterpret_cast<sockaddr*>(&address), size);
-  getsockname(probe, reinterpret_cast<sockaddr*>(&address), &size);
-  close(probe);
-  return ntohs(address.sin_port);
+  int ephemeral_low = 32768;
+  std::ifstream("/proc/sys/net/ipv4/ip_local_port_range") >> ephemeral_low;
+  static std::mt19937 random(std::random_device{}());
+  std::uniform_int_distribution<int> candidates(10000, std::max(10001, ephemeral_low - 1));
+  for (int attempt = 0; attempt < 1000; ++attempt) {
+    const int port = candidates(random);
+    const int probe = socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in address{};
+    address.sin_family = AF_INET;
+    address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    address.sin_port = htons(static_cast<uint16_t>(port));
+    const bool free = bind(probe, reinterpret_cast<sockaddr*>(&address), sizeof(address)) == 0;
+    close(probe);
+    if (free) return port;
+  }
+  throw std::runtime_error("no free loopback port below the ephemeral range");
 }
 
 struct BrokerEndpoints {
@@ -78,6 +88,7 @@ std::unique_ptr<HsclocProcess> StartWorker(const fs::path& map,
 // The workers a broker hears from, asked on its admin endpoint; -1 without a reply.
 int WorkersOf(const HsclocProcess& broker) {
   const std::string admin = broker.WaitForLine("admin on ");
+  if (admin.empty()) return -1;
   ClientOptions options;
   options.servers = {admin};
   options.timeout_ms = 2000;
@@ -96,6 +107,16 @@ bool WaitForWorkers(const HsclocProcess& broker, int workers) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
   return false;
+}
+
+// Every process's log under `dir`, for a failure's message: which process missed what.
+std::string AllLogs(const fs::path& dir) {
+  std::string logs;
+  for (const fs::directory_entry& entry : fs::directory_iterator(dir)) {
+    if (entry.path().extension() != ".log") continue;
+    logs += fmt::format("--- {}\n{}\n", entry.path().filename().string(), ReadText(entry.path()));
+  }
+  return logs;
 }
 
 // `hscloc-client batch` over the day queries through every broker given; its exit status.
@@ -156,10 +177,13 @@ TEST(FailoverTest, KillingAnyOneProcessCostsLatencyNeverAnAnswer) {
   load.join();
 
   ASSERT_GE(batches.size(), 2u);
+  bool whole = true;
   for (const auto& [status, out] : batches) {
     EXPECT_EQ(status, 0) << out << ": " << ReadText(out.string() + ".log");
     EXPECT_EQ(ReadText(out), expected) << out << " differs from the fault-free run";
+    whole = whole && status == 0 && ReadText(out) == expected;
   }
+  if (!whole) std::cout << AllLogs(temp.path());
   std::cout << fmt::format("{} batches of 50 queries through 5 kills, all whole and identical\n",
                            batches.size());
 }

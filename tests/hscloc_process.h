@@ -53,10 +53,11 @@ class HsclocProcess {
 
   std::string Log() const { return ReadText(log_); }
   // The rest of the first log line that starts with `prefix` ("listening on ", "admin on "),
-  // waiting up to a minute for it; empty when it does not come. Progress bars redraw with '\r':
-  // a line starts after either.
+  // waiting up to a minute for it; empty when it does not come or the process has ended without
+  // it. Progress bars redraw with '\r': a line starts after either.
   std::string WaitForLine(const std::string& prefix) const {
     for (int wait = 0; wait < 600; ++wait) {
+      const bool ended = Exited();  // before reading, so that its last words are in the log
       const std::string log = Log();
       for (size_t at = log.find(prefix); at != std::string::npos; at = log.find(prefix, at + 1)) {
         const size_t end = log.find('\n', at);
@@ -64,9 +65,19 @@ class HsclocProcess {
           return log.substr(at + prefix.size(), end - at - prefix.size());
         }
       }
+      if (ended) return "";
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
     }
     return "";
+  }
+  // Whether the process has ended (and been reaped: Kill and Terminate then leave it alone).
+  bool Exited() const {
+    if (pid_ <= 0) return true;
+    int status = 0;
+    if (waitpid(pid_, &status, WNOHANG) != pid_) return false;
+    pid_ = -1;
+    exit_status_ = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    return true;
   }
   void Kill() {
     if (pid_ <= 0) return;
@@ -77,6 +88,8 @@ class HsclocProcess {
   // Sends `signal` (SIGTERM by default), then returns the exit status (-1 when it did not exit
   // normally).
   int Terminate(int signal = SIGTERM) {
+    // Never kill(-1, ...), which signals every process we may: an ended one keeps its status.
+    if (pid_ <= 0) return exit_status_;
     kill(pid_, signal);
     int status = 0;
     waitpid(pid_, &status, 0);
@@ -86,7 +99,8 @@ class HsclocProcess {
 
  private:
   std::filesystem::path log_;
-  pid_t pid_ = -1;
+  mutable pid_t pid_ = -1;
+  mutable int exit_status_ = -1;  // once reaped by Exited()
 };
 
 }  // namespace hscloc::testing
