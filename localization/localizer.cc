@@ -8,8 +8,11 @@
 #include <numeric>
 #include <utility>
 
+#include "localization/matcher_choice.h"
 #include "localization/pooled_matches.h"
 #include "localization/rival_matches.h"
+#include "map/map_blobs.h"
+#include "map/map_bundle.h"
 #include "util/check.h"
 #include "util/timer.h"
 
@@ -27,10 +30,21 @@ PoseResult Finish(PoseResult result, std::string failure_reason, const Timer& to
 Matcher ParseMatcher(const std::string& name) {
   if (name == "hsc") return Matcher::kNetwork;
   if (name == "nn") return Matcher::kNearestNeighbor;
-  ThrowInvalidArgument("unknown matcher '{}' (hsc, nn)", name);
+  if (name == "auto") return Matcher::kAuto;
+  ThrowInvalidArgument("unknown matcher '{}' (hsc, nn, auto)", name);
 }
 
-std::string MatcherName(Matcher matcher) { return matcher == Matcher::kNetwork ? "hsc" : "nn"; }
+std::string MatcherName(Matcher matcher) {
+  switch (matcher) {
+    case Matcher::kNetwork:
+      return "hsc";
+    case Matcher::kNearestNeighbor:
+      return "nn";
+    case Matcher::kAuto:
+      return "auto";
+  }
+  return "?";
+}
 
 CandidateSearch ParseCandidateSearch(const std::string& name) {
   if (name == "all") return CandidateSearch::kAll;
@@ -110,22 +124,40 @@ Localizer::Localizer(std::shared_ptr<const LocalizationMap> map,
   if (network_ != nullptr) {
     point_votes_ = std::make_shared<const PointVoteIndex>(map_->visibility());
   }
+  auto_matcher_ = ResolveMatcher(Matcher::kAuto, map_->metadata(), network_ != nullptr,
+                                 nearest_neighbor_ != nullptr);
   CheckOptionsFit(options_);
 }
 
 Localizer Localizer::FromBundle(const std::filesystem::path& bundle_dir,
                                 const LocalizerOptions& options, ComputeDevice device) {
+  // What "auto" runs follows from the manifest alone, so that only what it needs is loaded.
+  Matcher matcher = options.matcher;
+  if (matcher == Matcher::kAuto) {
+    const MapBundle manifest = MapBundle::Open(bundle_dir, std::vector<std::string>{});
+    matcher = ResolveMatcher(matcher, manifest.metadata(), manifest.HasBlob(map_blobs::kNetwork),
+                             manifest.HasBlob(map_blobs::kObservations));
+  }
   auto map = LocalizationMap::Load(
-      bundle_dir, {.load_observations = options.matcher == Matcher::kNearestNeighbor,
-                   .load_network = options.matcher == Matcher::kNetwork ||
-                                   options.retrieval != RetrievalMode::kGlobal,
-                   .device = device});
+      bundle_dir,
+      {.load_observations = matcher == Matcher::kNearestNeighbor,
+       .load_network = matcher == Matcher::kNetwork || options.retrieval != RetrievalMode::kGlobal,
+       .device = device});
   std::shared_ptr<const Network> network = map->network();
   return Localizer(std::move(map), std::move(network), options);
 }
 
+Matcher Localizer::ResolvedMatcher(Matcher requested) const {
+  return requested == Matcher::kAuto ? auto_matcher_ : requested;
+}
+
 void Localizer::CheckOptionsFit(const LocalizerOptions& options) const {
   options.Check();
+  if (options.matcher == Matcher::kAuto && network_ == nullptr && nearest_neighbor_ == nullptr) {
+    ThrowInvalidArgument(
+        "{}: the map has neither a trained network nor its observations: no matcher can run",
+        map_->dir().string());
+  }
   if (options.matcher == Matcher::kNetwork && network_ == nullptr) {
     ThrowInvalidArgument("{}: the hsc matcher needs a trained network (run `hscloc train`)",
                          map_->dir().string());
@@ -531,6 +563,11 @@ void Localizer::EvaluateRound(const LocalizationQuery& query, const LocalizerOpt
 
 PoseResult Localizer::Localize(const LocalizationQuery& query,
                                const LocalizerOptions& options) const {
+  if (options.matcher == Matcher::kAuto) {
+    LocalizerOptions resolved = options;
+    resolved.matcher = auto_matcher_;
+    return Localize(query, resolved);
+  }
   CheckOptionsFit(options);
   CheckQuery(query);
   const Timer total_timer;

@@ -81,8 +81,9 @@ enum class Matcher {
   kNetwork,          // the hierarchical scene coordinate classification network ("hsc")
   kNearestNeighbor,  // mutual nearest neighbours + ratio test against the image's observations
                      // ("nn")
+  kAuto,             // the one the map found cheaper (localization/matcher_choice.h; "auto")
 };
-// "hsc" or "nn"; throws std::invalid_argument otherwise.
+// "hsc", "nn" or "auto"; throws std::invalid_argument otherwise.
 Matcher ParseMatcher(const std::string& name);
 std::string MatcherName(Matcher matcher);
 
@@ -188,6 +189,9 @@ class Localizer {
   // With per-query options (e.g. a client's top_k); they are checked against the map as above.
   PoseResult Localize(const LocalizationQuery& query, const LocalizerOptions& options) const;
 
+  // The matcher `requested` runs on this map: kAuto resolved (ResolveMatcher), the others as
+  // they are.
+  Matcher ResolvedMatcher(Matcher requested) const;
   const LocalizationMap& map() const { return *map_; }
   const LocalizerOptions& options() const { return options_; }
   const Network* network() const { return network_.get(); }
@@ -259,6 +263,7 @@ class Localizer {
   std::shared_ptr<const NearestNeighborMatcher> nearest_neighbor_;
   // Built when the network is there to vote.
   std::shared_ptr<const PointVoteIndex> point_votes_;
+  Matcher auto_matcher_ = Matcher::kNetwork;  // what kAuto runs here
 };
 
 }  // namespace hscloc

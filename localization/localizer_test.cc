@@ -357,6 +357,7 @@ TEST(LocalizationMapTest, LoadsTheNetworkWithTheMapFromOneOpening) {
 TEST(LocalizerTest, MatcherNamesRoundTrip) {
   EXPECT_EQ(ParseMatcher(MatcherName(Matcher::kNetwork)), Matcher::kNetwork);
   EXPECT_EQ(ParseMatcher(MatcherName(Matcher::kNearestNeighbor)), Matcher::kNearestNeighbor);
+  EXPECT_EQ(ParseMatcher(MatcherName(Matcher::kAuto)), Matcher::kAuto);
   EXPECT_THAT(testing::InvalidArgumentMessage([] { ParseMatcher("sift"); }), HasSubstr("'sift'"));
 }
 

@@ -119,10 +119,10 @@ NetworkEvaluation EvaluateNearestClassMean(const Scene& scene, const LabelTree& 
   return evaluation;
 }
 
-void WriteNetworkToBundle(
-    const std::filesystem::path& bundle_dir, const TrainingResult& result,
-    const TrainerOptions& options,
-    const std::vector<std::pair<std::string, NetworkEvaluation>>& evaluations) {
+void WriteNetworkToBundle(const std::filesystem::path& bundle_dir, const TrainingResult& result,
+                          const TrainerOptions& options,
+                          const std::vector<std::pair<std::string, NetworkEvaluation>>& evaluations,
+                          const nlohmann::json& notes) {
   MapBundleWriter writer = MapBundleWriter::Update(bundle_dir);
   writer.AddBlob(map_blobs::kNetwork, [&](std::ostream& stream) { result.network.Save(stream); });
   const std::string csv = result.LogCsv();
@@ -185,6 +185,7 @@ void WriteNetworkToBundle(
                              {"leaf_accuracy", evaluation.leaf_accuracy}};
   }
   json["evaluations"] = evaluation_json;
+  for (const auto& [key, value] : notes.items()) json[key] = value;
   writer.metadata()[map_metadata::kNetwork] = json;
   writer.Commit();
 }

@@ -15,6 +15,7 @@
 #include <atomic>
 #include <cstdint>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <utility>
@@ -205,11 +206,12 @@ NetworkEvaluation EvaluateNearestClassMean(const Scene& scene, const LabelTree& 
                                            const std::vector<uint32_t>& evaluated);
 
 // Adds the network (map_blobs::kNetwork), the training log (map_blobs::kTrainingLog) and
-// metadata "network" (shape, options, training summary, and the evaluations given) to an existing
-// map bundle, atomically.
+// metadata "network" (shape, options, training summary, the evaluations given, and the entries of
+// `notes`, such as what the network's matching costs) to an existing map bundle, atomically.
 void WriteNetworkToBundle(
     const std::filesystem::path& bundle_dir, const TrainingResult& result,
     const TrainerOptions& options,
-    const std::vector<std::pair<std::string, NetworkEvaluation>>& evaluations = {});
+    const std::vector<std::pair<std::string, NetworkEvaluation>>& evaluations = {},
+    const nlohmann::json& notes = nlohmann::json::object());
 
 }  // namespace hscloc

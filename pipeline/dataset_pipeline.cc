@@ -11,6 +11,7 @@
 #include "features/image_extraction.h"
 #include "localization/localization_map.h"
 #include "localization/map_builder.h"
+#include "localization/matcher_choice.h"
 #include "localization/query_runner.h"
 #include "map/map_blobs.h"
 #include "map/map_bundle.h"
@@ -233,7 +234,8 @@ std::string Train(const fs::path& map_dir, const fs::path& checkpoint,
   const TrainingResult result = TrainNetwork(map->scene(), map->label_tree(), training);
   // The trainer checkpointed where it stopped; the network is published only when trained.
   if (result.interrupted) throw StepInterrupted{};
-  WriteNetworkToBundle(map_dir, result, training);
+  WriteNetworkToBundle(map_dir, result, training, {},
+                       MeasureMatchingCost(*map, result.network).AsNetworkNotes());
   fs::remove(checkpoint);
   return fmt::format("{} iterations, held-out point accuracy {:.1f} %", result.iterations,
                      100 * result.best_held_out_accuracy);

@@ -9,6 +9,7 @@
 #include <zmq.hpp>
 #include <zmq_addon.hpp>
 
+#include "localization/matcher_choice.h"
 #include "server/broker.h"
 #include "server/curve_auth.h"
 #include "server/messages.h"
@@ -569,8 +570,9 @@ ReloadOutcome LocalizationService::LoadMap() {
     serving_ = std::move(serving);
     outcome.success = true;
     metrics_->SetMap(outcome.map_id, load_time.ElapsedSeconds());
-    spdlog::info("loaded and verified map {} from {} in {:.2f} s", outcome.map_id,
-                 map_dir_.string(), load_time.ElapsedSeconds());
+    spdlog::info("loaded and verified map {} from {} in {:.2f} s; {}", outcome.map_id,
+                 map_dir_.string(), load_time.ElapsedSeconds(),
+                 DescribeMatcher(*serving_->localizer, options_.localizer.matcher));
   } catch (const std::exception& error) {
     outcome.error_message = error.what();
     outcome.map_id = map_id();

@@ -55,7 +55,7 @@ TEST(PipelineCliTest, LundGivesTheSubmissionOfTheCommandsRunByHand) {
                   hand.string()),
       fmt::format("train --map {}/map {}", hand.string(), training),
       fmt::format("localize --map {0}/map --queries {1}/queries_with_intrinsics.txt --features "
-                  "{0}/features.h5 --out {0}/submission.txt",
+                  "{0}/features.h5 --out {0}/submission.txt --matcher hsc",
                   hand.string(), lund.string())};
   for (const std::string& command : commands) {
     ASSERT_EQ(RunHscloc(command, dir / "hand.log"), 0) << command << "\n"

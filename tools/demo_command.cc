@@ -19,6 +19,7 @@
 #include "localization/ablation.h"
 #include "localization/localizer.h"
 #include "localization/map_builder.h"
+#include "localization/matcher_choice.h"
 #include "localization/pose_evaluation.h"
 #include "localization/query_runner.h"
 #include "model/trainer.h"
@@ -156,7 +157,8 @@ void TrainDemoNetwork(const DemoArguments& arguments, const fs::path& bundle) {
   const TrainingResult result = TrainNetwork(map->scene(), map->label_tree(), train_options);
   std::cout << fmt::format("{} iterations in {}, final loss {:.3f}\n", result.iterations,
                            FormatDuration(result.seconds), result.final_loss);
-  WriteNetworkToBundle(bundle, result, train_options);
+  WriteNetworkToBundle(bundle, result, train_options, {},
+                       MeasureMatchingCost(*map, result.network).AsNetworkNotes());
 }
 
 // Serves the bundle on loopback and localizes every query list through `hscloc-client batch`;

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "localization/localizer.h"
+#include "localization/matcher_choice.h"
 #include "localization/query_runner.h"
 #include "model/network.h"
 #include "scene/feature_io.h"
@@ -23,7 +24,7 @@ struct LocalizeArguments {
   std::vector<std::string> query_lists;
   std::string features;
   std::string global_features;
-  std::string matcher = "hsc";
+  std::string matcher = "auto";
   std::string candidate_search = "all";
   std::string final_pose = FinalPoseName(LocalizerOptions().final_pose);
   std::string retrieval = RetrievalModeName(LocalizerOptions().retrieval);
@@ -59,8 +60,9 @@ int RunLocalize(LocalizeArguments& arguments) {
   const Timer timer;
   const Localizer localizer =
       Localizer::FromBundle(arguments.map_dir, options, ParseComputeDevice(arguments.device));
-  std::cerr << fmt::format("loaded {} in {}\n", arguments.map_dir,
-                           FormatDuration(timer.ElapsedSeconds()));
+  std::cerr << fmt::format("loaded {} in {}; {}\n", arguments.map_dir,
+                           FormatDuration(timer.ElapsedSeconds()),
+                           DescribeMatcher(localizer, options.matcher));
   const QueryListRunSummary summary =
       RunQueryList(localizer, queries, *features,
                    global_descriptors.empty() ? nullptr : &global_descriptors, arguments.run);
@@ -76,7 +78,7 @@ int RunLocalize(LocalizeArguments& arguments) {
       "submission: {}\n",
       summary.num_localized, summary.num_queries - summary.num_skipped, summary.num_failed,
       summary.failures_path.string(), FormatDuration(summary.seconds), summary.num_threads,
-      MatcherName(options.matcher), FormatStageTable(summary.timings),
+      MatcherName(localizer.ResolvedMatcher(options.matcher)), FormatStageTable(summary.timings),
       RetrievalModeName(localizer.options().retrieval), summary.num_with_votes,
       summary.num_won_by_votes, arguments.run.out.string());
   if (!arguments.run.timings_out.empty()) {
@@ -111,7 +113,10 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->required();
   command->add_option("--timings", arguments->run.timings_out,
                       "CSV of every query's stage timings in milliseconds, rounds and inliers");
-  command->add_option("--matcher", arguments->matcher, "hsc (the network) or nn (baseline)")
+  command
+      ->add_option("--matcher", arguments->matcher,
+                   "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
+                   "timed cheaper on this map; hsc where it timed none)")
       ->check(CLI::IsMember({"hsc", "nn"}))
       ->capture_default_str();
   command->add_option("--top-k", options.top_k, "Retrieved database images")->capture_default_str();

@@ -21,7 +21,7 @@ struct ServeArguments {
   bool broker = false;
   std::string backend = "tcp://*:5556";
   std::string map_dir;
-  std::string matcher = "hsc";
+  std::string matcher = "auto";
   std::string retrieval = RetrievalModeName(LocalizerOptions().retrieval);
   // Key files (hscloc keygen): secret keys hold one key, lists one public key per line.
   std::string curve_secret_key_file;
@@ -198,7 +198,10 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
       ->capture_default_str();
   command->add_option("--max-keypoints", options.limits.max_keypoints, "Keypoints per request")
       ->capture_default_str();
-  command->add_option("--matcher", arguments->matcher, "hsc (the network) or nn (baseline)")
+  command
+      ->add_option("--matcher", arguments->matcher,
+                   "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
+                   "timed cheaper on this map; hsc where it timed none)")
       ->check(CLI::IsMember({"hsc", "nn"}))
       ->capture_default_str();
   command->add_option("--top-k", options.localizer.top_k, "Retrieved images per query")

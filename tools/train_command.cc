@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "localization/localization_map.h"
+#include "localization/matcher_choice.h"
 #include "model/network.h"
 #include "model/trainer.h"
 #include "tools/commands.h"
@@ -212,7 +213,11 @@ int RunTrain(TrainArguments& arguments) {
     evaluations =
         EvaluateHeldOut(result.network, *map, options.holdout_fraction, options.holdout_seed);
   }
-  WriteNetworkToBundle(arguments.map_dir, result, options, evaluations);
+  // For `--matcher auto`: on a small map, nearest-neighbour matching may be the cheaper path.
+  const MatchingCost matching_cost = MeasureMatchingCost(*map, result.network);
+  WriteNetworkToBundle(arguments.map_dir, result, options, evaluations,
+                       matching_cost.AsNetworkNotes());
+  std::cout << DescribeAutoMatcher(matching_cost, true, true) << "\n";
   std::cout << fmt::format("network written to {} ({}, {})\n", arguments.map_dir,
                            map_blobs::kNetwork, map_blobs::kTrainingLog);
   return 0;
