@@ -13,6 +13,7 @@
 #include "bench/bench_support.h"
 #include "bench/query_evaluation.h"
 #include "localization/localization_map.h"
+#include "localization/matcher_choice.h"
 #include "localization/query_runner.h"
 #include "map/map_blobs.h"
 #include "scene/colmap_io.h"
@@ -113,6 +114,11 @@ json ComparePeers(const std::string& name, const fs::path& bundle, double train_
         AccuracyJson(Evaluate(localizer, localizer_options, queries, ground_truth, name));
   }
   peers["colmap"] = colmap;
+  // What `--matcher auto` runs on this map, from the timing `hscloc train` recorded.
+  if (const std::optional<MatchingCost> cost = MatchingCost::FromMetadata(map->metadata())) {
+    peers["auto"] = cost->ToJson();
+    peers["auto"]["matcher"] = MatcherName(localizer.ResolvedMatcher(Matcher::kAuto));
+  }
   // `hscloc train --eval`'s held-out point accuracy (visibility-masked decoding) beside the
   // nearest-class-mean matcher's on the same observations, when the training wrote them.
   const nlohmann::json evaluations = map->metadata()

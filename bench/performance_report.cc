@@ -179,6 +179,17 @@ std::string PeersTable(const json& peers) {
   table += PeerRow("NN baseline (descriptors + points + index)", peers["nn"], sizes["nn_bytes"]);
   table += PeerRow("COLMAP image_registrator (database.db + model)", peers["colmap"],
                    peers["colmap"].value("map_bytes", 0.0));
+  if (peers.contains("auto")) {
+    const json& choice = peers["auto"];
+    table += fmt::format(
+        "\n`--matcher auto` (the default) runs **{}** on this map: matching {} keypoints against "
+        "{} "
+        "images took the network {:.1f} ms and nearest neighbour {:.1f} ms on one core when it "
+        "was trained.\n",
+        choice["matcher"].get<std::string>(), choice["keypoints"].get<int>(),
+        choice["images"].get<int>(), choice["network_ms"].get<double>(),
+        choice["nearest_neighbor_ms"].get<double>());
+  }
   table += "\n" + PerQueryTable(peers);
   if (peers.contains("seeds") && peers["seeds"].size() > 1) table += SeedsTable(peers);
   return table;
