@@ -243,7 +243,8 @@ wire::Response LocalizationService::InfoReply() const {
   info->set_num_points(map.scene().NumPoints());
   info->set_global_descriptor_dim(static_cast<uint32_t>(map.global_index().dimension()));
   info->set_needs_global_descriptor(!map.vlad().has_value());
-  info->set_matcher(MatcherName(options_.localizer.matcher));
+  // The matcher that runs: "auto" resolved for the map being served.
+  info->set_matcher(MatcherName(serving->localizer->ResolvedMatcher(options_.localizer.matcher)));
   info->set_max_keypoints(options_.limits.max_keypoints);
   info->set_workers(static_cast<uint32_t>(num_workers_));
   return response;

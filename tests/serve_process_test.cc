@@ -10,6 +10,8 @@
 #include <zmq_addon.hpp>
 
 #include "client/localization_client.h"
+#include "localization/matcher_choice.h"
+#include "map/map_bundle.h"
 #include "server/wire.h"
 #include "tests/hscloc_process.h"
 #include "util/testing.h"
@@ -35,6 +37,13 @@ TEST(ServeProcessTest, SigtermDuringABurstOfReloadsWaitsForOneReloadAtMost) {
   options.servers = {admin};
   options.timeout_ms = 60000;
   options.retries = 0;
+  // The default matcher, auto, runs what the fixture's `hscloc train` timed cheaper, and says so.
+  const std::optional<MatchingCost> recorded = MatchingCost::FromMetadata(
+      MapBundle::Open(dir / "map", std::vector<std::string>{}).metadata());
+  ASSERT_TRUE(recorded.has_value());
+  const std::string runs = MatcherName(recorded->Cheaper());
+  EXPECT_EQ(LocalizationClient(options).Info().matcher(), runs);
+  EXPECT_THAT(server.Log(), HasSubstr("matcher auto: " + runs + " (matching 1000 keypoints"));
   const Timer one_reload;
   ASSERT_EQ(LocalizationClient(options).Reload().status(), wire::OK);
   const double reload_s = one_reload.ElapsedSeconds();
