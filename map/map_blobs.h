@@ -5,9 +5,10 @@
 namespace hscloc {
 
 namespace map_blobs {
-inline constexpr char kManifest[] = "manifest.json";         // written by MapBundleWriter itself
-inline constexpr char kScene[] = "scene.bin";                // cameras, images, points
-inline constexpr char kObservations[] = "observations.bin";  // training data; not for serving
+inline constexpr char kManifest[] = "manifest.json";  // written by MapBundleWriter itself
+inline constexpr char kScene[] = "scene.bin";         // cameras, images, points
+// Training data, and what nearest-neighbour matching searches (loaded to serve only for it).
+inline constexpr char kObservations[] = "observations.bin";
 inline constexpr char kLabelTree[] = "label_tree.bin";
 inline constexpr char kVisibility[] = "visibility.bin";
 inline constexpr char kVlad[] = "vlad.bin";  // absent when the global descriptors are external
