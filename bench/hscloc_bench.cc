@@ -389,12 +389,12 @@ int Run(const BenchOptions& options) {
     fs::create_directories(options.work);
     SetupLogging("warn");
     previous["real_sets"] = MergeRows(previous["real_sets"], MeasureRealSets(options));
-    // Rows not measured now keep their date.
-    previous["real_sets_measured"] =
-        options.real_sets.empty() || !previous.contains("real_sets_measured")
-            ? Today()
-            : fmt::format("{}, {} on {}", previous["real_sets_measured"].get<std::string>(),
-                          fmt::join(options.real_sets, " and "), Today());
+    // Rows not measured now keep their date: "*" is the whole run's, a set's own replaces it.
+    json measured = previous.value("real_sets_measured", json::object());
+    if (!measured.is_object()) measured = {{"*", measured}};  // one date for every set
+    if (options.real_sets.empty()) measured = {{"*", Today()}};
+    for (const std::string& set : options.real_sets) measured[set] = Today();
+    previous["real_sets_measured"] = measured;
     WriteResults(previous, json_path, options);
     Step(fmt::format("measured the real sets into {} and {}", json_path.string(),
                      options.report.string()));

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <vector>
 
@@ -156,6 +157,22 @@ std::string StageTimingsTable(const json& peers) {
                          entry["max"].get<double>(), entry["in_slowest_5_percent"].get<int>());
   }
   return table + "\n";
+}
+
+// "D0, lund and fountain-P11 on D1" from {"*": D0, "lund": D1, "fountain-P11": D1}; a plain
+// string is one date for every set.
+std::string MeasuredDates(const json& measured) {
+  if (measured.is_string()) return measured.get<std::string>();
+  std::map<std::string, std::vector<std::string>> sets_by_date;
+  for (const auto& [set, date] : measured.items()) {
+    if (set != "*") sets_by_date[date.get<std::string>()].push_back(set);
+  }
+  std::vector<std::string> parts;
+  if (measured.contains("*")) parts.push_back(measured["*"].get<std::string>());
+  for (const auto& [date, sets] : sets_by_date) {
+    parts.push_back(fmt::format("{} on {}", fmt::join(sets, " and "), date));
+  }
+  return fmt::format("{}", fmt::join(parts, ", "));
 }
 
 std::string PeersTable(const json& peers) {
@@ -373,7 +390,7 @@ void WritePeers(const json& results, std::ostringstream& md) {
                "map's own, 5 % of the observations held out.");
   if (results.contains("real_sets_measured")) {
     md << fmt::format(" These rows were measured on {}, apart from the rest of the run.",
-                      results["real_sets_measured"].get<std::string>());
+                      MeasuredDates(results["real_sets_measured"]));
   }
   md << "\n\n";
   for (const json& peers : results["real_sets"]) md << PeersTable(peers);
