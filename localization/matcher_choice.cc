@@ -114,6 +114,10 @@ MatchingCost MeasureMatchingCost(const LocalizationMap& map, const Network& netw
                                  const LocalizerOptions& options, int keypoints, int images) {
   THROW_CHECK_MSG(keypoints > 0 && images > 0, "MeasureMatchingCost: {} keypoints, {} images",
                   keypoints, images);
+  if (network.device() != ComputeDevice::kCpu) {
+    ThrowInvalidArgument("timing the network as a query runs needs it on the CPU, not on {}",
+                         ComputeDeviceName(network.device()));
+  }
   const Scene& scene = map.scene();
   if (scene.NumObservations() == 0) {
     ThrowInvalidArgument("{}: timing nearest-neighbour matching needs the map's observations",

@@ -33,8 +33,8 @@ struct MatchingCost {
 
 // Times the match stage of `network` and of nearest-neighbour matching on one probe, each as the
 // Localizer runs it with `options`: the probe's descriptors are spread over the map's
-// observations (the map must hold them) and its images over the map's images. On one thread, as
-// a query runs; the compute threads are restored after.
+// observations (the map must hold them) and its images over the map's images. On one thread of
+// the CPU, as a query runs (`network` must be on the CPU); the compute threads are restored after.
 MatchingCost MeasureMatchingCost(const LocalizationMap& map, const Network& network,
                                  const LocalizerOptions& options = {}, int keypoints = 1000,
                                  int images = 10);

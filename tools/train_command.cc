@@ -3,6 +3,7 @@
 #include <atomic>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -214,9 +215,13 @@ int RunTrain(TrainArguments& arguments) {
         EvaluateHeldOut(result.network, *map, options.holdout_fraction, options.holdout_seed);
   }
   // For `--matcher auto`: on a small map, nearest-neighbour matching may be the cheaper path.
-  const MatchingCost matching_cost = MeasureMatchingCost(*map, result.network);
+  // Queries run on the CPU, so a network trained elsewhere is not timed there.
+  std::optional<MatchingCost> matching_cost;
+  if (result.network.device() == ComputeDevice::kCpu) {
+    matching_cost = MeasureMatchingCost(*map, result.network);
+  }
   WriteNetworkToBundle(arguments.map_dir, result, options, evaluations,
-                       matching_cost.AsNetworkNotes());
+                       matching_cost ? matching_cost->AsNetworkNotes() : nlohmann::json::object());
   std::cout << DescribeAutoMatcher(matching_cost, true, true) << "\n";
   std::cout << fmt::format("network written to {} ({}, {})\n", arguments.map_dir,
                            map_blobs::kNetwork, map_blobs::kTrainingLog);
