@@ -173,6 +173,13 @@ torch::Tensor ChildNodesOf(const LabelTree& tree, const int64_t* parent_nodes, i
 
 LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions& options)
     : level_(level) {
+  node_output_dim_ = options.node_output_dim;
+  pooled_ = options.pooled_point_rows;
+  // A level whose parents all have one child never runs (Predict and training take the only
+  // child): it holds no weights. Without node counts (archives before version 3) every level runs.
+  has_weights_ = shape.nodes_per_depth.empty() ||
+                 shape.nodes_per_depth.at(level + 1) > shape.nodes_per_depth.at(level);
+  if (!has_weights_) return;
   const int64_t channels = options.channels;
   const int64_t embedding = options.embedding_dim;
   const int64_t trunk_channels = options.trunk_channels;
@@ -180,15 +187,10 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
   trunk2_ = register_module("trunk2", torch::nn::Linear(trunk_channels, channels));
   image_embedding_ =
       register_module("image_embedding", torch::nn::Embedding(shape.num_images + 1, embedding));
-  // A level whose parents all have one child never runs (Predict and training skip it): its
-  // per-node tables keep a single row.
-  const bool has_choice = !shape.nodes_per_depth.empty() &&
-                          shape.nodes_per_depth.at(level + 1) > shape.nodes_per_depth.at(level);
   if (options.node_conditioning) {
     node_embedding_first_ = shape.FirstNodeOfDepth(level);
     node_embedding_ = register_module(
-        "node_embedding",
-        torch::nn::Embedding(has_choice ? shape.nodes_per_depth.at(level) : 1, embedding));
+        "node_embedding", torch::nn::Embedding(shape.nodes_per_depth.at(level), embedding));
   } else {
     for (int k = 0; k < level; ++k) {
       label_embeddings_.push_back(register_module(
@@ -204,8 +206,6 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
     conditioned_.push_back(
         register_module("conditioned" + suffix, torch::nn::Linear(channels, channels)));
   }
-  node_output_dim_ = options.node_output_dim;
-  pooled_ = options.pooled_point_rows;
   if (node_output_dim_ > 0) {
     const int64_t children = shape.nodes_per_depth.at(level + 1);
     node_rows_first_ = shape.FirstNodeOfDepth(level + 1);
@@ -215,8 +215,7 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
           register_parameter("shortcut_scale", torch::full({1}, kInitialShortcutScale));
     }
     if (!pooled_) {
-      node_rows_ = register_parameter(
-          "node_rows", torch::zeros({has_choice ? children : 1, node_output_dim_ + 1}));
+      node_rows_ = register_parameter("node_rows", torch::zeros({children, node_output_dim_ + 1}));
     }
   } else {
     output_ = register_module("output", torch::nn::Linear(channels, shape.branching));
@@ -312,6 +311,7 @@ torch::Tensor LevelImpl::Logits(const torch::Tensor& features, const torch::Tens
 }
 
 LevelWeights LevelImpl::CpuWeights() const {
+  if (!has_weights_) throw std::logic_error("CpuWeights of a level without a choice");
   const auto data = [](const torch::Tensor& tensor) -> const float* {
     if (!tensor.device().is_cpu() || tensor.scalar_type() != torch::kFloat32 ||
         !tensor.is_contiguous()) {

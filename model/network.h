@@ -179,9 +179,9 @@ class Network {
   void SetDevice(ComputeDevice device);
   ComputeDevice device() const;
 
-  // A libtorch archive holding the shape, the options and the weights, the map-sized tables (a row
-  // per image, tree node or point) at half precision: they are most of a large map's bytes, and
-  // rounding them moved no held-out accuracy measurably (docs/decisions.md).
+  // A libtorch archive holding the shape, the options and the weights, every matrix as 8-bit rows
+  // with a scale per row: a quarter of the bytes, and no held-out accuracy moved beyond its
+  // sampling noise (docs/decisions.md).
   void Save(std::ostream& stream) const;
   // Throws std::invalid_argument naming `source` when the data is not a network archive of this
   // format version.

@@ -22,9 +22,12 @@ constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
 // Version 3 added node conditioning, node output rows and the tree's node counts; older archives
 // are the paper's configuration. Version 4 added pooled point rows and masked decoding. Version 5
 // stores the weights flat, by parameter name, with the map-sized tables at half precision when
-// saved for a bundle (docs/decisions.md).
-constexpr int64_t kFormatVersion = 6;
+// saved for a bundle. Version 6 added the descriptor shortcut. Version 7 stores no weights for a
+// level without a choice, and a bundle's matrices as 8-bit rows (docs/decisions.md).
+constexpr int64_t kFormatVersion = 7;
 constexpr int64_t kFirstFlatWeightsVersion = 5;
+// The per-row scales of a matrix stored as 8-bit rows, under the matrix's name plus this suffix.
+constexpr char kRowScalesSuffix[] = ".row_scales";
 
 void WriteInt64Vector(torch::serialize::OutputArchive& archive, const std::string& key,
                       const std::vector<int64_t>& values) {
@@ -45,25 +48,51 @@ std::vector<int64_t> ReadInt64Vector(torch::serialize::InputArchive& archive,
                               tensor.data_ptr<int64_t>() + tensor.numel());
 }
 
-// Every parameter and buffer by its dotted name, tables at `tables` precision. A table that half
-// precision cannot hold (a value beyond +-65504) stays at full precision.
-void WriteWeights(const HscNet& module, TablePrecision tables,
+// Every parameter and buffer by its dotted name. With kInt8Rows each matrix (a parameter of two
+// dimensions: dense weights and the tables with a row per image, node or point) is stored as 8-bit
+// rows and their scales; vectors (biases, scales) and buffers stay at full precision, as does a
+// matrix holding a value that is not finite.
+void WriteWeights(const HscNet& module, WeightStorage storage,
                   torch::serialize::OutputArchive& weights) {
   for (const auto& item : module->named_parameters()) {
     const std::string& name = item.key();
-    torch::Tensor stored = item.value().detach().cpu();
-    if (tables == TablePrecision::kFloat16 && IsMapSizedTable(name)) {
-      torch::Tensor half = stored.to(torch::kHalf);
-      if (torch::isfinite(half).all().item<bool>()) stored = half;
+    const torch::Tensor stored = item.value().detach().cpu();
+    if (storage == WeightStorage::kInt8Rows && stored.dim() == 2 &&
+        torch::isfinite(stored).all().item<bool>()) {
+      const Int8Rows rows = QuantizeRows(stored);
+      weights.write(name, rows.values);
+      weights.write(name + kRowScalesSuffix, rows.scales);
+    } else {
+      weights.write(name, stored);
     }
-    weights.write(name, stored);
   }
   for (const auto& item : module->named_buffers()) {
     weights.write(item.key(), item.value().detach().cpu(), /*is_buffer=*/true);
   }
 }
 
-// Copies each stored weight into the freshly built module, converting half-precision tables back.
+// A stored weight as fp32: 8-bit rows times their scales, half precision converted.
+torch::Tensor StoredWeight(torch::serialize::InputArchive& weights, const std::string& name,
+                           torch::Tensor stored, const std::string& source) {
+  if (stored.scalar_type() == torch::kInt8) {
+    Int8Rows rows{std::move(stored), {}};
+    if (!weights.try_read(name + kRowScalesSuffix, rows.scales) ||
+        rows.scales.scalar_type() != torch::kFloat32 || rows.values.dim() != 2 ||
+        rows.scales.sizes() != torch::IntArrayRef{rows.values.size(0)}) {
+      ThrowInvalidArgument("{}: network weight '{}' is stored as 8-bit rows without their scales",
+                           source, name);
+    }
+    return DequantizeRows(rows);
+  }
+  if (!stored.is_floating_point()) {
+    ThrowInvalidArgument("{}: network weight '{}' is neither floating point nor 8-bit rows", source,
+                         name);
+  }
+  return stored;
+}
+
+// Copies each stored weight into the freshly built module. Archives before version 7 also hold
+// weights for levels without a choice, which the module no longer has: they are not read.
 void ReadWeights(torch::serialize::InputArchive& weights, const std::string& source,
                  HscNet& module) {
   torch::NoGradGuard no_grad;
@@ -72,7 +101,8 @@ void ReadWeights(torch::serialize::InputArchive& weights, const std::string& sou
     if (!weights.try_read(name, stored, is_buffer)) {
       ThrowInvalidArgument("{}: network weights lack '{}'", source, name);
     }
-    if (stored.sizes() != target.sizes() || !stored.is_floating_point()) {
+    stored = StoredWeight(weights, name, std::move(stored), source);
+    if (stored.sizes() != target.sizes()) {
       ThrowInvalidArgument("{}: network weight '{}' has shape {}, the network needs {}", source,
                            name, fmt::join(stored.sizes(), "x"), fmt::join(target.sizes(), "x"));
     }
@@ -84,18 +114,23 @@ void ReadWeights(torch::serialize::InputArchive& weights, const std::string& sou
 
 }  // namespace
 
-bool IsMapSizedTable(const std::string& parameter_name) {
-  const auto ends_with = [&](const std::string& suffix) {
-    return parameter_name.size() >= suffix.size() &&
-           parameter_name.compare(parameter_name.size() - suffix.size(), suffix.size(), suffix) ==
-               0;
-  };
-  return ends_with("image_embedding.weight") || ends_with("node_embedding.weight") ||
-         ends_with("node_rows") || ends_with("point_rows");
+Int8Rows QuantizeRows(const torch::Tensor& matrix) {
+  THROW_CHECK_EQ(matrix.dim(), 2);
+  const torch::Tensor full = matrix.detach().to(torch::kCPU, torch::kFloat32);
+  const torch::Tensor scales = full.abs().amax(1) / 127.0f;
+  // A zero row divides by 1 instead of 0: its values are 0 either way.
+  const torch::Tensor divisors = torch::where(scales > 0, scales, torch::ones_like(scales));
+  const torch::Tensor values =
+      (full / divisors.unsqueeze(1)).round().clamp(-127, 127).to(torch::kInt8);
+  return {values.contiguous(), scales.contiguous()};
+}
+
+torch::Tensor DequantizeRows(const Int8Rows& rows) {
+  return rows.values.to(torch::kFloat32) * rows.scales.unsqueeze(1);
 }
 
 void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputArchive& archive,
-                              TablePrecision tables) {
+                              WeightStorage storage) {
   const NetworkShape& shape = network.shape();
   const NetworkOptions& options = network.options();
   WriteInt64Vector(archive, "format", {kFormatMagic, kFormatVersion});
@@ -108,16 +143,22 @@ void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputAr
                     options.masked_decoding ? 1 : 0, options.descriptor_shortcut ? 1 : 0});
   WriteInt64Vector(archive, "nodes_per_depth", shape.nodes_per_depth);
   torch::serialize::OutputArchive weights;
-  WriteWeights(network.impl_->module, tables, weights);
+  WriteWeights(network.impl_->module, storage, weights);
   archive.write("weights", weights);
 }
 
 Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
                                    const std::string& source, ComputeDevice device) {
   const std::vector<int64_t> format = ReadInt64Vector(archive, "format", 2, source);
-  if (format[0] != kFormatMagic || format[1] < 1 || format[1] > kFormatVersion) {
-    ThrowInvalidArgument("{}: network archive format {} of version {}, expected version 1 to {}",
-                         source, format[0], format[1], kFormatVersion);
+  if (format[0] != kFormatMagic) {
+    ThrowInvalidArgument("{}: not an hscloc network archive (format magic {:#x})", source,
+                         format[0]);
+  }
+  if (format[1] < 1 || format[1] > kFormatVersion) {
+    ThrowInvalidArgument(
+        "{}: network archive of version {}; this hscloc reads versions 1 to {} (a newer hscloc "
+        "wrote it?)",
+        source, format[1], kFormatVersion);
   }
   const std::vector<int64_t> s = ReadInt64Vector(archive, "shape", 4, source);
   const size_t option_count = format[1] == 1   ? 3
@@ -186,7 +227,7 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
 
 void Network::Save(std::ostream& stream) const {
   torch::serialize::OutputArchive archive;
-  NetworkInternals::SaveTo(*this, archive, TablePrecision::kFloat16);
+  NetworkInternals::SaveTo(*this, archive, WeightStorage::kInt8Rows);
   archive.save_to(stream);
 }
 

@@ -13,11 +13,11 @@
 namespace hscloc {
 namespace {
 
+using testing_support::AsStoredInABundle;
 using testing_support::CopyAtFullPrecision;
 using testing_support::MakeRandomMap;
 using testing_support::RandomDescriptors;
 using testing_support::RandomMap;
-using testing_support::WithTablesRoundedToHalf;
 
 // The archive as version 1 (three options: no trunk width, which equalled the channels) or 2
 // (four options) wrote it; neither had per-node tables or node counts.
@@ -92,7 +92,7 @@ TEST(NetworkArchiveTest, CurrentVersionKeepsOutputTablesDecodingAndCounts) {
     const Network loaded = Network::Load(stream, "current.pt");
     EXPECT_EQ(loaded.options(), options);
     EXPECT_EQ(loaded.shape().nodes_per_depth, map.shape.nodes_per_depth);
-    const Network expected_network = WithTablesRoundedToHalf(network);
+    const Network expected_network = AsStoredInABundle(network);
     EXPECT_TRUE(loaded.HasSameWeights(expected_network));
     const DescriptorMatrix descriptors = RandomDescriptors(60, map.shape.descriptor_dim, 8);
     const PointPredictions expected = expected_network.Predict(descriptors, {0, 4}, map.tree);
@@ -102,8 +102,9 @@ TEST(NetworkArchiveTest, CurrentVersionKeepsOutputTablesDecodingAndCounts) {
   }
 }
 
-// Only the tables are rounded: every other weight is kept exactly, and a checkpoint keeps all.
-TEST(NetworkArchiveTest, BundlesRoundOnlyTheTablesAndCheckpointsNothing) {
+// A bundle stores every matrix as 8-bit rows, each element within half a row's step of the
+// trained value, and every vector exactly; a checkpoint keeps all as trained.
+TEST(NetworkArchiveTest, BundlesStoreMatricesAsEightBitRowsAndCheckpointsEverything) {
   const RandomMap map = MakeRandomMap(12);
   NetworkOptions options = testing_support::SmallOptions();
   options.node_conditioning = true;
@@ -116,46 +117,95 @@ TEST(NetworkArchiveTest, BundlesRoundOnlyTheTablesAndCheckpointsNothing) {
   network.Save(stream);
   const Network loaded = Network::Load(stream, "bundle.pt");
   EXPECT_FALSE(loaded.HasSameWeights(network));
+  EXPECT_TRUE(loaded.HasSameWeights(AsStoredInABundle(network)));
   const auto original = NetworkInternals::Module(network)->named_parameters();
-  int tables = 0;
+  int matrices = 0;
   for (const auto& item : NetworkInternals::Module(loaded)->named_parameters()) {
     const torch::Tensor& before = original[item.key()];
-    if (IsMapSizedTable(item.key())) {
-      ++tables;
-      EXPECT_TRUE(torch::equal(item.value(), before.to(torch::kHalf).to(torch::kFloat)))
-          << item.key();
-      // Half precision keeps 11 significant bits.
-      EXPECT_LE((item.value() - before).abs().max().item<float>(),
-                std::ldexp(before.abs().max().item<float>(), -11))
+    if (before.dim() == 2) {
+      ++matrices;
+      const torch::Tensor step = before.abs().amax(1, true) / 127;
+      EXPECT_TRUE(((item.value() - before).abs() <= step / 2 * (1 + 1e-5)).all().item<bool>())
           << item.key();
     } else {
       EXPECT_TRUE(torch::equal(item.value(), before)) << item.key();
     }
   }
-  // Image embeddings and node embeddings of every level, and the point rows.
-  EXPECT_GE(tables, 2 * map.shape.levels);
+  EXPECT_GE(matrices, 8 * map.shape.levels);
 }
 
-// A table with a value half precision cannot hold stays at full precision.
-TEST(NetworkArchiveTest, TablesBeyondTheHalfRangeStayExact) {
+// 8-bit rows: the largest magnitude of a row is kept, a zero row stays zero, values already on a
+// row's grid come back exactly, and the rows take a quarter of the bytes.
+TEST(NetworkArchiveTest, EightBitRowsKeepEachRowsScale) {
+  const torch::Tensor matrix =
+      torch::tensor({0.f, 0.f, 0.f, 1.f, -0.5f, 0.25f, 127.f, -3.f, 64.f}).view({3, 3});
+  const Int8Rows rows = QuantizeRows(matrix);
+  EXPECT_EQ(rows.values.scalar_type(), torch::kInt8);
+  EXPECT_TRUE(torch::equal(rows.values[0], torch::zeros({3}, torch::kInt8)));
+  EXPECT_FLOAT_EQ(rows.scales[1].item<float>(), 1.f / 127);
+  EXPECT_EQ(rows.values[1][0].item<int>(), 127);
+  EXPECT_EQ(rows.values[1][1].item<int>(), -64);  // -63.5 rounds away from zero
+  EXPECT_TRUE(torch::equal(DequantizeRows(rows)[2], matrix[2]));
+  const torch::Tensor noise = torch::randn({50, 40}) * torch::rand({50, 1}) * 10;
+  const torch::Tensor back = DequantizeRows(QuantizeRows(noise));
+  EXPECT_TRUE(
+      ((back - noise).abs() <= noise.abs().amax(1, true) / 254 * (1 + 1e-5)).all().item<bool>());
+  EXPECT_TRUE(torch::allclose(back.abs().amax(1), noise.abs().amax(1), 1e-6, 0));
+}
+
+// The bundle's archive is about a quarter of the checkpoint's, and a level whose parents all
+// have one child holds no weights at all.
+TEST(NetworkArchiveTest, BundlesAreAQuarterOfTheWeightsAndSkipLevelsWithoutAChoice) {
+  const RandomMap map = MakeRandomMap(12);
+  NetworkOptions options = testing_support::SmallOptions();
+  options.channels = 64;
+  options.trunk_channels = 64;
+  const Network network(map.shape, options, 7);
+  torch::serialize::OutputArchive checkpoint;
+  NetworkInternals::SaveTo(network, checkpoint, WeightStorage::kFloat32);
+  std::ostringstream full;
+  checkpoint.save_to(full);
+  std::ostringstream bundle;
+  network.Save(bundle);
+  EXPECT_LT(bundle.str().size(), 0.35 * full.str().size());
+
+  // A map of 10 points under a tree of 3 levels, branching 12: only the first level chooses.
+  NetworkShape shape = map.shape;
+  shape.nodes_per_depth = {1, 10, 10, 10};
+  const Network shallow(shape, testing_support::SmallOptions(), 7);
+  const auto& levels = NetworkInternals::Module(shallow)->levels;
+  EXPECT_TRUE(levels[0]->HasWeights());
+  EXPECT_GT(levels[0]->parameters().size(), 0u);
+  for (size_t level = 1; level < levels.size(); ++level) {
+    EXPECT_FALSE(levels[level]->HasWeights());
+    EXPECT_TRUE(levels[level]->parameters().empty());
+  }
+  EXPECT_LT(shallow.NumParameters(),
+            Network(map.shape, testing_support::SmallOptions(), 7).NumParameters() / 2);
+}
+
+// A matrix holding a value that is not finite is stored as it is.
+TEST(NetworkArchiveTest, MatricesWithNonFiniteValuesStayExact) {
   const RandomMap map = MakeRandomMap(12);
   const Network network(map.shape, testing_support::SmallOptions(), 7);
-  Network large = CopyAtFullPrecision(network);
+  Network odd = CopyAtFullPrecision(network);
   {
     torch::NoGradGuard no_grad;
-    for (auto& item : NetworkInternals::Module(large)->named_parameters()) {
-      if (IsMapSizedTable(item.key())) item.value().view({-1})[0].fill_(1e6);
+    for (auto& item : NetworkInternals::Module(odd)->named_parameters()) {
+      if (item.value().dim() == 2) item.value().view({-1})[0].fill_(INFINITY);
     }
   }
   std::stringstream stream;
-  large.Save(stream);
-  EXPECT_TRUE(Network::Load(stream, "large.pt").HasSameWeights(large));
+  odd.Save(stream);
+  EXPECT_TRUE(Network::Load(stream, "odd.pt").HasSameWeights(odd));
 }
 
 // The network's current archive with `format` replaced and each weight passed through `weight`.
+// `extra_weights` are written beside them.
 std::string RewrittenArchive(
     const Network& network, const std::vector<int64_t>& format,
-    const std::function<torch::Tensor(const std::string&, const torch::Tensor&)>& weight) {
+    const std::function<torch::Tensor(const std::string&, const torch::Tensor&)>& weight,
+    const std::vector<std::pair<std::string, torch::Tensor>>& extra_weights = {}) {
   std::stringstream stream;
   network.Save(stream);
   torch::serialize::InputArchive archive;
@@ -173,6 +223,7 @@ std::string RewrittenArchive(
   for (const auto& item : NetworkInternals::Module(network)->named_parameters()) {
     weights.write(item.key(), weight(item.key(), item.value()));
   }
+  for (const auto& [name, tensor] : extra_weights) weights.write(name, tensor);
   rewritten.write("weights", weights);
   std::ostringstream bytes;
   rewritten.save_to(bytes);
@@ -212,6 +263,39 @@ TEST(NetworkArchiveTest, VersionFiveArchivesLoadWithoutTheDescriptorShortcut) {
   EXPECT_EQ(loaded.options(), options);
   EXPECT_FALSE(loaded.options().descriptor_shortcut);
   EXPECT_TRUE(loaded.HasSameWeights(network));
+}
+
+// Version 6 archives stored weights for the levels without a choice too: they load, unread.
+TEST(NetworkArchiveTest, VersionSixWeightsOfLevelsWithoutAChoiceAreLeftUnread) {
+  NetworkShape shape = MakeRandomMap(12).shape;
+  shape.nodes_per_depth = {1, 10, 10, 10};
+  const Network network(shape, testing_support::SmallOptions(), 3);
+  std::istringstream input(
+      RewrittenArchive(network, {0x4e435348, 6},
+                       [](const std::string&, const torch::Tensor& tensor) { return tensor; },
+                       {{"level1.trunk1.weight", torch::ones({4, 4})},
+                        {"level2.generator.bias", torch::ones({4})}}));
+  const Network loaded = Network::Load(input, "v6.pt");
+  EXPECT_TRUE(loaded.HasSameWeights(network));
+  EXPECT_EQ(loaded.NumParameters(), network.NumParameters());
+}
+
+// 8-bit rows without their scales are named, not misread.
+TEST(NetworkArchiveTest, EightBitRowsWithoutScalesAreNamed) {
+  const RandomMap map = MakeRandomMap(12);
+  const Network network(map.shape, testing_support::SmallOptions(), 3);
+  std::istringstream input(RewrittenArchive(
+      network, {0x4e435348, 7}, [](const std::string& name, const torch::Tensor& tensor) {
+        return name == "level0.trunk2.weight" ? QuantizeRows(tensor).values : tensor;
+      }));
+  try {
+    Network::Load(input, "unscaled.pt");
+    FAIL() << "8-bit rows without scales loaded";
+  } catch (const std::invalid_argument& error) {
+    EXPECT_NE(std::string(error.what()).find("unscaled.pt: network weight 'level0.trunk2.weight'"),
+              std::string::npos)
+        << error.what();
+  }
 }
 
 TEST(NetworkArchiveTest, ArchivesOfAnUnknownVersionAreRejectedByName) {

@@ -86,6 +86,8 @@ class LevelImpl : public torch::nn::Module {
                         const torch::Tensor& child_nodes);
 
   int level() const { return level_; }
+  // False for a level whose parents all have one child: it never runs and holds no weights.
+  bool HasWeights() const { return has_weights_; }
   bool HasNodeOutput() const { return node_output_dim_ > 0; }
   bool IsPooled() const { return pooled_; }
   // Training gathers the per-node tables (output rows, conditioning embeddings) with sparse
@@ -97,6 +99,7 @@ class LevelImpl : public torch::nn::Module {
 
  private:
   int level_;
+  bool has_weights_ = true;
   // Unit-norm descriptors have components of about 1/sqrt(D); the trunk sees them scaled to unit
   // variance, as He initialization assumes, so Adam's steps have the same relative size for any D.
   double input_scale_ = 1;
@@ -184,20 +187,29 @@ struct Network::Impl {
   ComputeDevice device = ComputeDevice::kCpu;
 };
 
-enum class TablePrecision { kFloat32, kFloat16 };
-// Whether a parameter (by its name in HscNet) is one of the tables with a row per image, tree node
-// or point: most of a large map's weights, and looked up rather than multiplied.
-bool IsMapSizedTable(const std::string& parameter_name);
+// How an archive stores the weights: as trained (checkpoints), or with every matrix as 8-bit rows
+// and a scale per row (bundles), a quarter of the bytes; the largest error, half a row's step
+// (its largest magnitude / 254), moved no held-out accuracy beyond its sampling noise
+// (docs/decisions.md).
+enum class WeightStorage { kFloat32, kInt8Rows };
+
+// A matrix [rows, cols] as int8 values and fp32 scales [rows]: row i is values[i] * scales[i], the
+// scale being the row's largest magnitude / 127 (0 for a zero row).
+struct Int8Rows {
+  torch::Tensor values;
+  torch::Tensor scales;
+};
+Int8Rows QuantizeRows(const torch::Tensor& matrix);
+torch::Tensor DequantizeRows(const Int8Rows& rows);
 
 // The trainer's access to the modules behind a Network.
 struct NetworkInternals {
   static HscNet& Module(Network& network) { return network.impl_->module; }
   static const HscNet& Module(const Network& network) { return network.impl_->module; }
-  // Saves into / restores from an archive nested in a larger one (checkpoints). kFloat16 stores
-  // the map-sized tables (image and node embeddings, node and point output rows) at half
-  // precision, for bundles; checkpoints keep every weight as trained.
+  // Saves into / restores from an archive nested in a larger one (checkpoints keep every weight
+  // as trained).
   static void SaveTo(const Network& network, torch::serialize::OutputArchive& archive,
-                     TablePrecision tables);
+                     WeightStorage storage);
   static Network LoadFrom(torch::serialize::InputArchive& archive, const std::string& source,
                           ComputeDevice device);
   // Predict through libtorch operators (the CUDA path), whatever the device: the reference the

@@ -185,8 +185,7 @@ TEST(NetworkTest, VisibilityMaskKeepsPredictionsInTheImage) {
 // Identical once the tables are rounded as the archive stores them (network_archive_test.cc).
 TEST(NetworkTest, SaveThenLoadGivesIdenticalPredictions) {
   const RandomMap map = MakeRandomMap(4);
-  const Network network =
-      testing_support::WithTablesRoundedToHalf(Network(map.shape, SmallOptions(), 9));
+  const Network network = testing_support::AsStoredInABundle(Network(map.shape, SmallOptions(), 9));
   std::stringstream stream;
   network.Save(stream);
   const Network loaded = Network::Load(stream, "memory");

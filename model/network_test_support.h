@@ -108,7 +108,7 @@ inline DescriptorMatrix RandomDescriptors(int64_t rows, int64_t dim, uint64_t se
 // A copy of the network through a full-precision archive (as checkpoints store it).
 inline Network CopyAtFullPrecision(const Network& network) {
   torch::serialize::OutputArchive archive;
-  NetworkInternals::SaveTo(network, archive, TablePrecision::kFloat32);
+  NetworkInternals::SaveTo(network, archive, WeightStorage::kFloat32);
   std::stringstream stream;
   archive.save_to(stream);
   torch::serialize::InputArchive input;
@@ -116,14 +116,12 @@ inline Network CopyAtFullPrecision(const Network& network) {
   return NetworkInternals::LoadFrom(input, "checkpoint", ComputeDevice::kCpu);
 }
 
-// The network with its map-sized tables rounded to half precision and back: what a bundle keeps.
-inline Network WithTablesRoundedToHalf(const Network& network) {
+// The network with every matrix rounded to 8-bit rows and back: what a bundle keeps.
+inline Network AsStoredInABundle(const Network& network) {
   Network rounded = CopyAtFullPrecision(network);
   torch::NoGradGuard no_grad;
   for (auto& item : NetworkInternals::Module(rounded)->named_parameters()) {
-    if (IsMapSizedTable(item.key())) {
-      item.value().copy_(item.value().to(torch::kHalf).to(torch::kFloat));
-    }
+    if (item.value().dim() == 2) item.value().copy_(DequantizeRows(QuantizeRows(item.value())));
   }
   return rounded;
 }

@@ -335,7 +335,7 @@ TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {
   EXPECT_DOUBLE_EQ(evaluation.leaf_accuracy, best);
 
   // Each check left the network as it stood then (not the best one), in the bundle's format
-  // (tables at half precision, so within a few observations of the check).
+  // (matrices as 8-bit rows, so within a few observations of the check).
   size_t snapshots = 0;
   for (const auto& entry : fs::directory_iterator(options.snapshot_dir)) {
     snapshots += entry.path().extension() == ".pt";
@@ -448,7 +448,7 @@ TEST_F(TinyCityTrainerTest, WritesTheNetworkIntoTheBundle) {
               ::testing::StartsWith("iteration,seconds,learning_rate,loss,accuracy_level1"));
 
   const Network loaded = Network::FromBundle(bundle);
-  const Network expected_network = testing_support::WithTablesRoundedToHalf(result.network);
+  const Network expected_network = testing_support::AsStoredInABundle(result.network);
   EXPECT_TRUE(loaded.HasSameWeights(expected_network));
   DescriptorMatrix descriptors = Map().scene.observation_descriptors.topRows(50);
   const PointPredictions expected = expected_network.Predict(descriptors, {0, 5}, Map().tree);

@@ -12,8 +12,9 @@ namespace hscloc {
 namespace {
 
 // Checkpoint layout version; the network inside carries its own. Version 2 added the lazy Adam
-// state of node output rows and the best network so far.
-constexpr int64_t kCheckpointVersion = 2;
+// state of node output rows and the best network so far. Version 3: levels without a choice hold no
+// weights, so the optimizers' state has fewer tensors than version 2's.
+constexpr int64_t kCheckpointVersion = 3;
 
 torch::Tensor LogToTensor(const std::vector<TrainingLogEntry>& log, int levels) {
   const int64_t columns = 4 + levels;
@@ -69,7 +70,7 @@ void SaveCheckpoint(const std::filesystem::path& path, const Network& network,
   torch::serialize::OutputArchive archive;
   archive.write("checkpoint_version", torch::tensor({kCheckpointVersion}, torch::kInt64));
   torch::serialize::OutputArchive network_archive;
-  NetworkInternals::SaveTo(network, network_archive, TablePrecision::kFloat32);
+  NetworkInternals::SaveTo(network, network_archive, WeightStorage::kFloat32);
   archive.write("network", network_archive);
   torch::serialize::OutputArchive optimizer_archive;
   optimizer.save(optimizer_archive);

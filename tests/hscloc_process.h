@@ -5,6 +5,7 @@
 
 #include <fmt/format.h>
 #include <signal.h>
+#include <sys/prctl.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -35,8 +36,14 @@ class HsclocProcess {
   // Starts `hscloc ARGUMENTS...` (the subcommand first) with stdout and stderr in `log`.
   HsclocProcess(const std::vector<std::string>& arguments, std::filesystem::path log)
       : log_(std::move(log)) {
+    const pid_t test_process = getpid();
     pid_ = fork();
     if (pid_ == 0) {
+      // A test binary killed from outside (ctest's timeout kills it) must not leave servers
+      // holding their ports for the next run. The signal follows the thread that forked, and the
+      // tests start their processes from their main thread.
+      prctl(PR_SET_PDEATHSIG, SIGTERM);
+      if (getppid() != test_process) _exit(127);
       freopen(log_.c_str(), "w", stdout);
       freopen(log_.c_str(), "a", stderr);
       std::vector<char*> argv = {const_cast<char*>(HSCLOC_BINARY)};
