@@ -148,7 +148,13 @@ LocalizationClient::~LocalizationClient() = default;
 
 void LocalizationClient::Connect() {
   const std::string& server = options_.servers[current_];
-  state_->monitor = zmq::socket_t();
+  // The old socket stops reporting before its monitor closes. libzmq's I/O thread sends each
+  // event with a blocking send: one sent to a closed monitor (the old socket retrying a dead
+  // server) would stall it, and with it every later socket of this client, which then times out
+  // on live servers.
+  if (state_->socket) zmq_socket_monitor(state_->socket.handle(), nullptr, 0);
+  state_->socket.close();
+  state_->monitor.close();
   state_->socket = zmq::socket_t(state_->context, zmq::socket_type::dealer);
   // A closed attempt's unsent request is dropped rather than delaying the exit.
   state_->socket.set(zmq::sockopt::linger, 0);

@@ -160,6 +160,9 @@ void Broker::Stop() {
   if (state_ == nullptr || stopping_.exchange(true)) return;
   if (thread_.joinable()) thread_.join();
   state_->front.close();
+  // Monitoring stops before its socket closes: libzmq's I/O thread would block on an event sent
+  // to a closed monitor, and the context's termination with it.
+  zmq_socket_monitor(state_->back.handle(), nullptr, 0);
   state_->back_monitor.close();
   state_->back.close();
   state_->admin.close();

@@ -139,12 +139,17 @@ class Client:
         return self.options.endpoints[self._current]
 
     def _close_socket(self) -> None:
+        # The socket stops reporting before its monitor closes: libzmq's I/O thread sends each
+        # event with a blocking send, and one sent to a closed monitor (the old socket retrying a
+        # dead server) would stall it, and every later socket of this client with it.
+        if self._socket is not None:
+            if self._monitor is not None:
+                self._socket.disable_monitor()
+            self._socket.close(linger=0)
+            self._socket = None
         if self._monitor is not None:
             self._monitor.close(linger=0)
             self._monitor = None
-        if self._socket is not None:
-            self._socket.close(linger=0)
-            self._socket = None
 
     def _connect(self) -> None:
         self._close_socket()
