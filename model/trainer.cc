@@ -484,17 +484,28 @@ TrainingResult Trainer::Result(bool restored_best) {
 // Converged: the last quarter of the budget gained less than 5 % of the accuracy reached.
 bool Trainer::Converged() const {
   const double final_progress = budget_.Progress(state_.iteration, state_.seconds_before);
-  double at_three_quarters = state_.checks.front().point_accuracy;
+  std::vector<double> accuracies, progress;
   for (const HeldOutCheck& check : state_.checks) {
-    if (budget_.Progress(check.iteration, check.seconds) <= 0.75 * final_progress) {
-      at_three_quarters = check.point_accuracy;
-    }
+    accuracies.push_back(check.point_accuracy);
+    progress.push_back(budget_.Progress(check.iteration, check.seconds) / final_progress);
   }
-  return state_.checks.size() >= 2 &&
-         state_.best_accuracy - at_three_quarters < 0.05 * state_.best_accuracy;
+  return HeldOutConverged(accuracies, progress);
 }
 
 }  // namespace
+
+bool HeldOutConverged(const std::vector<double>& accuracies, const std::vector<double>& progress) {
+  THROW_CHECK_EQ(accuracies.size(), progress.size());
+  double before_last_quarter = -1;
+  double in_last_quarter = -1;
+  double best = 0;
+  for (size_t i = 0; i < accuracies.size(); ++i) {
+    double& best_of_part = progress[i] <= 0.75 ? before_last_quarter : in_last_quarter;
+    best_of_part = std::max(best_of_part, accuracies[i]);
+    best = std::max(best, accuracies[i]);
+  }
+  return accuracies.size() >= 2 && in_last_quarter - before_last_quarter < 0.05 * best;
+}
 
 void DescriptorAugmentationOptions::Check() const {
   THROW_CHECK_MSG(noise_norm >= 0 && std::isfinite(noise_norm),

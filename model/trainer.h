@@ -139,8 +139,7 @@ struct TrainingResult {
   // The returned network's iteration and held-out accuracy (keep_best), or the last ones.
   int64_t best_iteration = 0;
   double best_held_out_accuracy = -1;  // -1: never evaluated
-  // Whether the held-out accuracy gained less than 5 % (relative) over the last quarter of the
-  // budget.
+  // HeldOutConverged over the held-out checks.
   bool converged = false;
   // Ended by TrainerOptions::stop_requested before the budget was spent.
   bool interrupted = false;
@@ -168,6 +167,12 @@ std::string SnapshotFileName(int64_t iteration);
 // Whether a network with these output layers conditions on node embeddings by default: not with
 // pooled point rows.
 bool DefaultNodeConditioning(const NetworkOptions& options);
+
+// Whether held-out checks (accuracies at their share of the budget, 0 to 1) show a converged
+// training: the checks of the budget's last quarter beat every earlier one by less than 5 % of the
+// best. A best check early in the budget with later ones worse is converged too: more of the same
+// budget would not help. False with fewer than two checks.
+bool HeldOutConverged(const std::vector<double>& accuracies, const std::vector<double>& progress);
 
 // Whether observation `index` belongs to the held-out fraction (a hash of index and seed).
 bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed);

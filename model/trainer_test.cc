@@ -148,6 +148,17 @@ TEST(TrainerOptionsTest, ChecksNameTheField) {
   }
 }
 
+// Converged unless the last quarter of the budget gained 5 % or more over every earlier check; a
+// start that later checks only fall below is converged, not "still improving".
+TEST(TrainerTest, ConvergenceLooksAtWhatTheLastQuarterGained) {
+  EXPECT_FALSE(HeldOutConverged({0.5, 0.6, 0.8}, {0.1, 0.5, 0.9}));
+  EXPECT_TRUE(HeldOutConverged({0.5, 0.79, 0.8}, {0.1, 0.5, 0.9}));
+  EXPECT_TRUE(HeldOutConverged({0.98, 0.90, 0.91}, {0.0, 0.5, 0.9}));
+  EXPECT_TRUE(HeldOutConverged({0.5, 0.8}, {0.1, 0.75}));  // nothing in the last quarter
+  EXPECT_FALSE(HeldOutConverged({0.5, 0.8}, {0.1, 0.76}));
+  EXPECT_FALSE(HeldOutConverged({0.8}, {1.0}));
+}
+
 TEST(TrainerTest, HeldOutSplitIsDeterministicAndNearTheFraction) {
   size_t held_out = 0;
   for (uint64_t i = 0; i < 100000; ++i) {
