@@ -1,6 +1,7 @@
 #include "localization/localizer.h"
 
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cmath>
@@ -51,6 +52,15 @@ Localizer::Localizer(std::shared_ptr<const LocalizationMap> map,
   }
   if (network_ != nullptr) {
     point_votes_ = std::make_shared<const PointVoteIndex>(map_->visibility());
+    if (network_->options().pooled_point_rows && network_->device() == ComputeDevice::kCpu &&
+        network_->shape().nodes_per_depth.back() >= PointRowIndex::kMinPoints) {
+      const Timer timer;
+      point_row_index_ = std::make_shared<const PointRowIndex>(
+          PointRowIndex::Build(*network_, map_->label_tree()));
+      spdlog::info("point row index for the votes: {} lists over {} points in {:.2f} s",
+                   point_row_index_->NumLists(), point_row_index_->NumPoints(),
+                   timer.ElapsedSeconds());
+    }
   }
   auto_matcher_ = ResolveMatcher(Matcher::kAuto, map_->metadata(), network_ != nullptr,
                                  nearest_neighbor_ != nullptr);
@@ -187,8 +197,9 @@ std::vector<LocalizationCandidate> Localizer::RetrieveByVotes(
   // dropout has learned to). Each prediction votes as much as the network is sure of it, divided
   // by the square root of the point's track length, so that a point seen from everywhere does not
   // outvote the rarer ones that place the query (as tf-idf weights words).
-  const PointPredictions predictions = network_->Predict(
-      query.descriptors, {network_->NoImageIndex()}, map_->label_tree(), nullptr, &network_cache);
+  const PointPredictions predictions =
+      network_->Predict(query.descriptors, {network_->NoImageIndex()}, map_->label_tree(), nullptr,
+                        &network_cache, options.exact_votes ? nullptr : point_row_index_.get());
   std::vector<int64_t> points(num_keypoints);
   std::vector<float> weights(num_keypoints, 0.0f);
   for (int64_t keypoint = 0; keypoint < num_keypoints; ++keypoint) {

@@ -34,6 +34,7 @@
 #include "localization/nearest_neighbor_matcher.h"
 #include "localization/stage_timings.h"
 #include "model/network.h"
+#include "model/point_row_index.h"
 #include "pose/absolute_pose.h"
 #include "retrieval/point_votes.h"
 #include "scene/features.h"
@@ -95,6 +96,10 @@ struct LocalizerOptions {
   // kGlobalThenVotes: a best candidate with fewer inliers than this calls for the votes' round,
   // as does a first round without any pose (even at 0).
   int vote_retrieval_below_inliers = 30;
+  // The votes' pass without an image id scores every point of the map at its first level; on a
+  // map of at least PointRowIndex::kMinPoints points it probes the point row index instead
+  // (model/point_row_index.h), unless this asks for the exact pass.
+  bool exact_votes = false;
   // Drop matches to points the candidate image does not observe.
   bool visibility_filter = true;
   // Condition the network on the candidate's image id; off, it sees the "no image" id (an
@@ -263,6 +268,8 @@ class Localizer {
   std::shared_ptr<const NearestNeighborMatcher> nearest_neighbor_;
   // Built when the network is there to vote.
   std::shared_ptr<const PointVoteIndex> point_votes_;
+  // The network's point rows in lists, for the votes' first level on a large map; null otherwise.
+  std::shared_ptr<const PointRowIndex> point_row_index_;
   Matcher auto_matcher_ = Matcher::kNetwork;  // what kAuto runs here
 };
 

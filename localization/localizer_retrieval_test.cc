@@ -119,8 +119,16 @@ TEST_F(SmallCityLocalizerTest, EachPredictedPointKeepsTheRivalItsPoseReprojectsN
     SCOPED_TRACE(query.name);
     const PoseResult result = localizer().Localize(query, winner_only);
     if (!result.success) continue;
-    ++checked;
     const uint32_t image = result.candidates[result.best_candidate].image_index;
+    // Near the truth, the pose's last refinement moves reprojections by little (below). A wrong
+    // pose on a repeated facade may move by metres there (a night query, 1.8 m off with 115
+    // inliers): the rivals were chosen before that move.
+    const Rigid3d& truth =
+        Set("night").ground_truth[&query - Set("night").queries.data()].cam_from_world;
+    if ((result.cam_from_world.Inverse().translation - truth.Inverse().translation).norm() > 0.25) {
+      continue;
+    }
+    ++checked;
     const PointPredictions predictions =
         network.Predict(query.descriptors, {image}, localizer().map().label_tree(),
                         masked ? &localizer().map().visibility() : nullptr);

@@ -151,7 +151,7 @@ bool NetworkOptions::operator==(const NetworkOptions& other) const {
          node_conditioning == other.node_conditioning && node_output_dim == other.node_output_dim &&
          pooled_point_rows == other.pooled_point_rows &&
          descriptor_shortcut == other.descriptor_shortcut &&
-         masked_decoding == other.masked_decoding;
+         masked_decoding == other.masked_decoding && shared_trunk == other.shared_trunk;
 }
 
 torch::Tensor ChildNodesOf(const LabelTree& tree, const int64_t* parent_nodes, int64_t rows) {
@@ -171,7 +171,8 @@ torch::Tensor ChildNodesOf(const LabelTree& tree, const int64_t* parent_nodes, i
 // ---------------------------------------------------------------------------------------------
 // Modules.
 
-LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions& options)
+LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions& options,
+                     const LevelImpl* trunk_owner)
     : level_(level) {
   node_output_dim_ = options.node_output_dim;
   pooled_ = options.pooled_point_rows;
@@ -183,8 +184,16 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
   const int64_t channels = options.channels;
   const int64_t embedding = options.embedding_dim;
   const int64_t trunk_channels = options.trunk_channels;
-  trunk1_ = register_module("trunk1", torch::nn::Linear(shape.descriptor_dim, trunk_channels));
-  trunk2_ = register_module("trunk2", torch::nn::Linear(trunk_channels, channels));
+  borrows_trunk_ = trunk_owner != nullptr;
+  if (borrows_trunk_) {
+    // The owner's modules, not registered here: the parameters are saved, trained and moved
+    // once, as the owner's.
+    trunk1_ = trunk_owner->trunk1_;
+    trunk2_ = trunk_owner->trunk2_;
+  } else {
+    trunk1_ = register_module("trunk1", torch::nn::Linear(shape.descriptor_dim, trunk_channels));
+    trunk2_ = register_module("trunk2", torch::nn::Linear(trunk_channels, channels));
+  }
   image_embedding_ =
       register_module("image_embedding", torch::nn::Embedding(shape.num_images + 1, embedding));
   if (options.node_conditioning) {
@@ -230,8 +239,10 @@ LevelImpl::LevelImpl(int level, const NetworkShape& shape, const NetworkOptions&
     torch::nn::init::kaiming_normal_(linear->weight, 0, torch::kFanIn, torch::kReLU);
     linear->bias.zero_();
   };
-  he_initialize(trunk1_);
-  he_initialize(trunk2_);
+  if (!borrows_trunk_) {
+    he_initialize(trunk1_);
+    he_initialize(trunk2_);
+  }
   he_initialize(generator_);
   for (int i = 0; i < options.conditioned_layers; ++i) {
     he_initialize(conditioned_[i]);
@@ -361,7 +372,14 @@ torch::Tensor LevelImpl::Features(const torch::Tensor& descriptors,
                                   const torch::Tensor& image_indices,
                                   const torch::Tensor& prefix_labels,
                                   const torch::Tensor& parent_nodes) {
-  torch::Tensor features = Trunk(descriptors);
+  return FeaturesOfTrunk(Trunk(descriptors), image_indices, prefix_labels, parent_nodes);
+}
+
+torch::Tensor LevelImpl::FeaturesOfTrunk(const torch::Tensor& trunk,
+                                         const torch::Tensor& image_indices,
+                                         const torch::Tensor& prefix_labels,
+                                         const torch::Tensor& parent_nodes) {
+  torch::Tensor features = trunk;
   const LevelModulation modulation = Generate(image_indices, prefix_labels, parent_nodes);
   for (size_t i = 0; i < conditioned_.size(); ++i) {
     features =
@@ -379,9 +397,14 @@ torch::Tensor LevelImpl::forward(const torch::Tensor& descriptors,
 }
 
 HscNetImpl::HscNetImpl(const NetworkShape& shape, const NetworkOptions& options) {
+  // A shared trunk belongs to the first level with weights; the others borrow it.
+  const LevelImpl* trunk_owner = nullptr;
   for (int level = 0; level < shape.levels; ++level) {
-    levels.push_back(
-        register_module("level" + std::to_string(level), Level(level, shape, options)));
+    levels.push_back(register_module("level" + std::to_string(level),
+                                     Level(level, shape, options, trunk_owner)));
+    if (options.shared_trunk && trunk_owner == nullptr && levels.back()->HasWeights()) {
+      trunk_owner = levels.back().get();
+    }
   }
   if (options.pooled_point_rows) {
     point_rows = register_parameter(
@@ -452,13 +475,16 @@ double Network::PredictFlops(int64_t num_descriptors, int64_t num_images,
   const double r = options().node_output_dim;
   const double output =
       r > 0 ? rows * (c * r + (r + 1) * shape().branching) : rows * c * shape().branching;
-  const double per_level = n * (d * h + h * c + c * c) + rows * (layers - 1) * c * c +
-                           rows * (e * e + 2 * layers * e * c) + output;
+  const double trunk = n * (d * h + h * c);
+  const double per_level =
+      n * c * c + rows * (layers - 1) * c * c + rows * (e * e + 2 * layers * e * c) + output;
   int levels_with_choice = 0;
   for (int level = 0; level < std::min(tree.levels(), shape().levels); ++level) {
     levels_with_choice += tree.LevelHasChoice(level);
   }
-  return 2 * per_level * levels_with_choice;
+  const double trunks =
+      options().shared_trunk ? std::min(levels_with_choice, 1) : levels_with_choice;
+  return 2 * (per_level * levels_with_choice + trunk * trunks);
 }
 
 // The contract of Predict and PredictWithLibtorch.
@@ -494,11 +520,11 @@ void CheckPredictInputs(const Network& network, const DescriptorMatrix& descript
 
 PointPredictions Network::Predict(const DescriptorMatrix& descriptors,
                                   const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                                  const Visibility* visibility_mask,
-                                  DescriptorLayerCache* cache) const {
+                                  const Visibility* visibility_mask, DescriptorLayerCache* cache,
+                                  const PointRowIndex* index) const {
   CheckPredictInputs(*this, descriptors, image_indices, tree, visibility_mask);
   if (impl_->device == ComputeDevice::kCpu) {
-    return PredictOnCpu(*this, descriptors, image_indices, tree, visibility_mask, cache);
+    return PredictOnCpu(*this, descriptors, image_indices, tree, visibility_mask, cache, index);
   }
   return NetworkInternals::PredictWithTorch(*this, descriptors, image_indices, tree,
                                             visibility_mask);

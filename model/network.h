@@ -3,8 +3,9 @@
 // classification-only form for sparse features: for each keypoint descriptor and a database image
 // id it predicts the label path of a 3D point in the map's label tree, level by level.
 //
-// Level j (no layers shared between levels):
+// Level j:
 //   trunk        t = ELU(Linear_HC(ELU(Linear_DH(x))))              x: L2-normalized descriptor
+//                (one trunk per level, or one shared by every level: NetworkOptions::shared_trunk)
 //   generator    z = ELU(Linear(ELU(E_id[image] + sum_{k<j} E_k[label_k])))
 //                gamma_i = Linear(z), beta_i = Linear(z)           one pair per conditioned layer
 //   conditioned  h_i = ELU(gamma_i * (W_i h_{i-1} + b_i) + beta_i)  h_0 = t
@@ -48,6 +49,8 @@
 #include "scene/features.h"
 
 namespace hscloc {
+
+class PointRowIndex;
 
 // Where tensors live. kCuda needs a libtorch built with CUDA and a visible GPU.
 enum class ComputeDevice { kCpu, kCuda };
@@ -119,6 +122,11 @@ struct NetworkOptions {
   // Trained with the visibility softmax: decode with the visibility mask (the Localizer does so on
   // its own for such a network).
   bool masked_decoding = false;
+  // One trunk for every level instead of one per level: each level keeps its own conditioned
+  // layers, and the trunk, most of a query's work at the default widths (it runs on every
+  // keypoint at every level), runs once per keypoint (docs/decisions.md, "Latency at Aachen
+  // scale").
+  bool shared_trunk = false;
 
   // The configuration of Li et al. (label-sum conditioning, a shared output layer per level).
   static NetworkOptions PaperFaithful();
@@ -136,6 +144,9 @@ struct DescriptorLayerCache {
   int64_t rows = 0;
   int64_t cols = 0;
   std::vector<std::vector<float>> levels;  // empty until that level was computed
+  // A shared trunk's output [N, H -> C] and the trunk weights it came from (null: none yet).
+  std::vector<float> shared_trunk;
+  const float* shared_trunk_weight = nullptr;
 };
 
 // Predictions for K conditioning images and N descriptors; (k, n) is row k * N + n of `labels`.
@@ -200,11 +211,14 @@ class Network {
   // With `cache`, each level's descriptor-only layers are taken from it, or computed into it on
   // first use, so that Predict calls on the same descriptors (a query's candidates, its votes
   // without an image id, the votes' candidates) run them once; a cache filled from other
-  // descriptors throws std::invalid_argument. The libtorch path (CUDA) does not use it.
+  // descriptors throws std::invalid_argument. With `index` (model/point_row_index.h, built from
+  // this network), rows without an image score the first level through it: approximate, for the
+  // votes. The libtorch path (CUDA) uses neither.
   PointPredictions Predict(const DescriptorMatrix& descriptors,
                            const std::vector<uint32_t>& image_indices, const LabelTree& tree,
                            const Visibility* visibility_mask = nullptr,
-                           DescriptorLayerCache* cache = nullptr) const;
+                           DescriptorLayerCache* cache = nullptr,
+                           const PointRowIndex* index = nullptr) const;
 
   // Predict through libtorch's operators instead of hscloc's CPU kernels: the path a CUDA device
   // takes, and the reference the CPU kernels are tested against. Same contract as Predict.

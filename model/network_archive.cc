@@ -23,8 +23,10 @@ constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
 // are the paper's configuration. Version 4 added pooled point rows and masked decoding. Version 5
 // stores the weights flat, by parameter name, with the map-sized tables at half precision when
 // saved for a bundle. Version 6 added the descriptor shortcut. Version 7 stores no weights for a
-// level without a choice, and a bundle's matrices as 8-bit rows (docs/decisions.md).
-constexpr int64_t kFormatVersion = 7;
+// level without a choice, and a bundle's matrices as 8-bit rows (docs/decisions.md). Version 8
+// added the shared trunk, stored once under its first level's names; older archives have a
+// trunk per level.
+constexpr int64_t kFormatVersion = 8;
 constexpr int64_t kFirstFlatWeightsVersion = 5;
 // The per-row scales of a matrix stored as 8-bit rows, under the matrix's name plus this suffix.
 constexpr char kRowScalesSuffix[] = ".row_scales";
@@ -136,11 +138,12 @@ void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputAr
   WriteInt64Vector(archive, "format", {kFormatMagic, kFormatVersion});
   WriteInt64Vector(archive, "shape",
                    {shape.descriptor_dim, shape.levels, shape.branching, shape.num_images});
-  WriteInt64Vector(archive, "options",
-                   {options.channels, options.embedding_dim, options.conditioned_layers,
-                    options.trunk_channels, options.node_conditioning ? 1 : 0,
-                    options.node_output_dim, options.pooled_point_rows ? 1 : 0,
-                    options.masked_decoding ? 1 : 0, options.descriptor_shortcut ? 1 : 0});
+  WriteInt64Vector(
+      archive, "options",
+      {options.channels, options.embedding_dim, options.conditioned_layers, options.trunk_channels,
+       options.node_conditioning ? 1 : 0, options.node_output_dim,
+       options.pooled_point_rows ? 1 : 0, options.masked_decoding ? 1 : 0,
+       options.descriptor_shortcut ? 1 : 0, options.shared_trunk ? 1 : 0});
   WriteInt64Vector(archive, "nodes_per_depth", shape.nodes_per_depth);
   torch::serialize::OutputArchive weights;
   WriteWeights(network.impl_->module, storage, weights);
@@ -165,7 +168,8 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
                               : format[1] == 2 ? 4
                               : format[1] == 3 ? 6
                               : format[1] <= 5 ? 8
-                                               : 9;
+                              : format[1] <= 7 ? 9
+                                               : 10;
   const std::vector<int64_t> o = ReadInt64Vector(archive, "options", option_count, source);
   NetworkShape shape{static_cast<int>(s[0]),
                      static_cast<int>(s[1]),
@@ -185,6 +189,7 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
       options.masked_decoding = o[7] != 0;
     }
     if (format[1] >= 6) options.descriptor_shortcut = o[8] != 0;
+    if (format[1] >= 8) options.shared_trunk = o[9] != 0;
     torch::Tensor nodes;
     if (!archive.try_read("nodes_per_depth", nodes) || nodes.scalar_type() != torch::kInt64 ||
         nodes.dim() != 1) {

@@ -215,8 +215,10 @@ std::string RewrittenArchive(
     torch::Tensor tensor;
     if (!archive.try_read(key, tensor)) continue;
     if (key == "format") tensor = torch::tensor(format, torch::kInt64);
-    // Versions 4 and 5 wrote eight options (no descriptor shortcut).
+    // Versions 4 and 5 wrote eight options (no descriptor shortcut), 6 and 7 nine (no shared
+    // trunk).
     if (key == "options" && format[1] <= 5) tensor = tensor.narrow(0, 0, 8);
+    if (key == "options" && (format[1] == 6 || format[1] == 7)) tensor = tensor.narrow(0, 0, 9);
     rewritten.write(key, tensor);
   }
   torch::serialize::OutputArchive weights;
@@ -262,6 +264,7 @@ TEST(NetworkArchiveTest, VersionFiveArchivesLoadWithoutTheDescriptorShortcut) {
   const Network loaded = Network::Load(input, "v5.pt");
   EXPECT_EQ(loaded.options(), options);
   EXPECT_FALSE(loaded.options().descriptor_shortcut);
+  EXPECT_FALSE(loaded.options().shared_trunk);
   EXPECT_TRUE(loaded.HasSameWeights(network));
 }
 

@@ -8,6 +8,7 @@
 #include <functional>
 #include <limits>
 #include <memory>
+#include <numeric>
 #include <utility>
 #include <vector>
 
@@ -15,6 +16,7 @@
 #include "model/network_decoding.h"
 #include "model/network_module.h"
 #include "model/point_candidates.h"
+#include "model/point_row_index.h"
 #include "util/check.h"
 #include "util/parallel.h"
 #include "util/timer.h"
@@ -49,6 +51,10 @@ struct BlockScratch {
   std::vector<std::vector<float>> gammas, betas;
   std::vector<int32_t> run_of_row;
   std::vector<int64_t> descriptor_of_row;
+  // The point row index: probe scores, (list, row) probes, and one list's rows and logits.
+  std::vector<float> probe_scores, list_queries, list_logits;
+  std::vector<uint32_t> probe_order;
+  std::vector<std::pair<uint32_t, uint32_t>> probes;
 
   void Reserve(int64_t rows, int64_t trunk_channels, int64_t channels, int64_t embedding_dim,
                int64_t branching, int layers, int64_t projected_dim) {
@@ -82,7 +88,8 @@ class CpuForwardPass {
  public:
   CpuForwardPass(const Network& network, const DescriptorMatrix& descriptors,
                  const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                 const Visibility* visibility_mask, DescriptorLayerCache& cache)
+                 const Visibility* visibility_mask, DescriptorLayerCache& cache,
+                 const PointRowIndex* index)
       : shape_(network.shape()),
         image_indices_(image_indices),
         tree_(tree),
@@ -92,6 +99,7 @@ class CpuForwardPass {
         trunk_channels_(network.options().trunk_channels),
         embedding_dim_(network.options().embedding_dim),
         node_output_dim_(network.options().node_output_dim),
+        shared_trunk_(network.options().shared_trunk),
         result_(AllocatePredictions(static_cast<int64_t>(image_indices.size()), descriptors.rows(),
                                     shape_.levels)),
         scaled_descriptors_(descriptors),
@@ -108,6 +116,7 @@ class CpuForwardPass {
     if (network.options().pooled_point_rows) {
       candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices);
       point_rows_ = NetworkInternals::Module(network)->point_rows.data_ptr<float>();
+      index_ = index;
     }
   }
 
@@ -173,21 +182,56 @@ class CpuForwardPass {
 
   // The trunk and the first conditioned layer's W h + b depend on the descriptor only.
   void RunDescriptorLayers(const LevelWeights& weights, int layers, float* features) {
+    if (shared_trunk_) {
+      RunFirstConditionedLayer(weights, SharedTrunk(weights, layers), features);
+      return;
+    }
     const int64_t descriptor_dim = shape_.descriptor_dim;
     multiply_adds_ += num_descriptors_ * (descriptor_dim * trunk_channels_ +
                                           trunk_channels_ * channels_ + channels_ * channels_);
     ForEachRowBlock(num_descriptors_, [&](int64_t begin, int64_t end) {
-      const int64_t block_rows = end - begin;
       thread_local BlockScratch scratch;
-      scratch.Reserve(block_rows, trunk_channels_, channels_, embedding_dim_, shape_.branching,
+      scratch.Reserve(end - begin, trunk_channels_, channels_, embedding_dim_, shape_.branching,
                       layers, node_output_dim_);
-      dense_kernels::Linear(scaled_descriptors_.data() + begin * descriptor_dim, block_rows,
-                            descriptor_dim, weights.trunk1_weight, weights.trunk1_bias,
-                            trunk_channels_, true, scratch.hidden.data());
-      dense_kernels::Linear(scratch.hidden.data(), block_rows, trunk_channels_,
-                            weights.trunk2_weight, weights.trunk2_bias, channels_, true,
-                            scratch.linear.data());
-      dense_kernels::Linear(scratch.linear.data(), block_rows, channels_,
+      RunTrunk(weights, begin, end, scratch, scratch.linear.data());
+      dense_kernels::Linear(scratch.linear.data(), end - begin, channels_,
+                            weights.conditioned_weights[0], weights.conditioned_biases[0],
+                            channels_, false, features + begin * channels_);
+    });
+  }
+
+  // The trunk of descriptors [begin, end) into out [end - begin, C].
+  void RunTrunk(const LevelWeights& weights, int64_t begin, int64_t end, BlockScratch& scratch,
+                float* out) const {
+    const int64_t descriptor_dim = shape_.descriptor_dim;
+    dense_kernels::Linear(scaled_descriptors_.data() + begin * descriptor_dim, end - begin,
+                          descriptor_dim, weights.trunk1_weight, weights.trunk1_bias,
+                          trunk_channels_, true, scratch.hidden.data());
+    dense_kernels::Linear(scratch.hidden.data(), end - begin, trunk_channels_,
+                          weights.trunk2_weight, weights.trunk2_bias, channels_, true, out);
+  }
+
+  // A shared trunk's output [N, C], computed at the first level that asks for it.
+  const float* SharedTrunk(const LevelWeights& weights, int layers) {
+    if (cache_.shared_trunk_weight == weights.trunk1_weight) return cache_.shared_trunk.data();
+    const int64_t descriptor_dim = shape_.descriptor_dim;
+    multiply_adds_ +=
+        num_descriptors_ * (descriptor_dim * trunk_channels_ + trunk_channels_ * channels_);
+    cache_.shared_trunk.resize(num_descriptors_ * channels_);
+    ForEachRowBlock(num_descriptors_, [&](int64_t begin, int64_t end) {
+      thread_local BlockScratch scratch;
+      scratch.Reserve(end - begin, trunk_channels_, channels_, embedding_dim_, shape_.branching,
+                      layers, node_output_dim_);
+      RunTrunk(weights, begin, end, scratch, cache_.shared_trunk.data() + begin * channels_);
+    });
+    cache_.shared_trunk_weight = weights.trunk1_weight;
+    return cache_.shared_trunk.data();
+  }
+
+  void RunFirstConditionedLayer(const LevelWeights& weights, const float* trunk, float* features) {
+    multiply_adds_ += num_descriptors_ * channels_ * channels_;
+    ForEachRowBlock(num_descriptors_, [&](int64_t begin, int64_t end) {
+      dense_kernels::Linear(trunk + begin * channels_, end - begin, channels_,
                             weights.conditioned_weights[0], weights.conditioned_biases[0],
                             channels_, false, features + begin * channels_);
     });
@@ -345,6 +389,12 @@ class CpuForwardPass {
       while (run_end < end && keyed_rows_[run_end].first == keyed_rows_[i].first) ++run_end;
       const int64_t row = keyed_rows_[i].second;
       const int64_t parent = parent_node_[row];
+      if (index_ != nullptr && parent == 0 &&
+          image_indices_[row / num_descriptors_] == static_cast<uint32_t>(shape_.num_images)) {
+        IndexedPooledLogits(i, run_end, begin, scratch);
+        i = run_end;
+        continue;
+      }
       const CandidateSpan span =
           parent < 0 ? CandidateSpan{}
                      : candidates_->Under(candidates_->SlotOf(row / num_descriptors_),
@@ -368,6 +418,60 @@ class CpuForwardPass {
       // A row without candidates (its path left the tree) keeps finite logits.
       if (span.size == 0) std::fill_n(run_logits, run_rows * branching, 0.0f);
       i = run_end;
+    }
+  }
+
+  // Rows [i, run_end) pool over every point of the map (no image, the root): each row scores the
+  // points of the index's lists that its projection probes, a list's probing rows at a time.
+  void IndexedPooledLogits(int64_t i, int64_t run_end, int64_t begin, BlockScratch& scratch) {
+    const int64_t branching = shape_.branching;
+    const int64_t run_rows = run_end - i;
+    const int64_t lists = index_->NumLists();
+    const int64_t probes = index_->probes();
+    const float* projected = scratch.projected.data() + (i - begin) * node_output_dim_;
+    float* run_logits = scratch.logits.data() + (i - begin) * branching;
+    scratch.probe_scores.resize(run_rows * lists);
+    dense_kernels::Linear(projected, run_rows, node_output_dim_, index_->CentroidWeights(),
+                          index_->CentroidBiases(), lists, false, scratch.probe_scores.data());
+    multiply_adds_ += run_rows * lists * node_output_dim_;
+    scratch.probes.clear();
+    scratch.probe_order.resize(lists);
+    for (int64_t r = 0; r < run_rows; ++r) {
+      const float* scores = scratch.probe_scores.data() + r * lists;
+      std::iota(scratch.probe_order.begin(), scratch.probe_order.end(), 0u);
+      std::nth_element(scratch.probe_order.begin(), scratch.probe_order.begin() + probes - 1,
+                       scratch.probe_order.end(),
+                       [&](uint32_t a, uint32_t b) { return scores[a] > scores[b]; });
+      for (int64_t p = 0; p < probes; ++p) {
+        scratch.probes.emplace_back(scratch.probe_order[p], static_cast<uint32_t>(r));
+      }
+    }
+    std::sort(scratch.probes.begin(), scratch.probes.end());
+    for (size_t p = 0; p < scratch.probes.size();) {
+      const uint32_t list = scratch.probes[p].first;
+      size_t last = p;
+      while (last < scratch.probes.size() && scratch.probes[last].first == list) ++last;
+      const auto count = static_cast<int64_t>(last - p);
+      scratch.list_queries.resize(count * node_output_dim_);
+      scratch.list_logits.resize(count * branching);
+      for (int64_t k = 0; k < count; ++k) {
+        const uint32_t r = scratch.probes[p + k].second;
+        std::copy_n(projected + r * node_output_dim_, node_output_dim_,
+                    scratch.list_queries.data() + k * node_output_dim_);
+        std::copy_n(run_logits + r * branching, branching,
+                    scratch.list_logits.data() + k * branching);
+      }
+      const PointRowIndex::Segments segments = index_->SegmentsOf(list);
+      multiply_adds_ +=
+          count * (index_->ListEnd(list) - index_->ListBegin(list)) * node_output_dim_;
+      dense_kernels::PooledMaxLogits(scratch.list_queries.data(), count, node_output_dim_,
+                                     index_->Rows(list), segments.starts, segments.labels,
+                                     segments.count, branching, scratch.list_logits.data());
+      for (int64_t k = 0; k < count; ++k) {
+        std::copy_n(scratch.list_logits.data() + k * branching, branching,
+                    run_logits + scratch.probes[p + k].second * branching);
+      }
+      p = last;
     }
   }
 
@@ -422,6 +526,7 @@ class CpuForwardPass {
   const int64_t trunk_channels_;
   const int64_t embedding_dim_;
   const int64_t node_output_dim_;
+  const bool shared_trunk_;
   PointPredictions result_;
   DescriptorMatrix scaled_descriptors_;
   float current_scale_ = 1;
@@ -429,6 +534,8 @@ class CpuForwardPass {
   // Pooled point rows: the candidates of the call's images, and the network's table.
   std::unique_ptr<PointCandidates> candidates_;
   const float* point_rows_ = nullptr;
+  // Where given, rows without an image score the root's children through it.
+  const PointRowIndex* index_ = nullptr;
   // The tree node of every row's label prefix (-1 once a path leaves the tree).
   std::vector<int64_t> parent_node_;
   // Every level's first conditioned layer's W h + b of every descriptor, [N, C], and the current
@@ -445,7 +552,8 @@ class CpuForwardPass {
 
 PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& descriptors,
                               const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                              const Visibility* visibility_mask, DescriptorLayerCache* cache) {
+                              const Visibility* visibility_mask, DescriptorLayerCache* cache,
+                              const PointRowIndex* index) {
   DescriptorLayerCache own;
   if (cache == nullptr) {
     cache = &own;
@@ -458,7 +566,12 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
   cache->rows = descriptors.rows();
   cache->cols = descriptors.cols();
   cache->levels.resize(network.shape().levels);
-  return CpuForwardPass(network, descriptors, image_indices, tree, visibility_mask, *cache)
+  if (index != nullptr &&
+      index->NumPoints() != static_cast<int64_t>(network.shape().nodes_per_depth.back())) {
+    ThrowInvalidArgument("Predict: a point row index of {} points for a network of {}",
+                         index->NumPoints(), network.shape().nodes_per_depth.back());
+  }
+  return CpuForwardPass(network, descriptors, image_indices, tree, visibility_mask, *cache, index)
       .Run(network);
 }
 

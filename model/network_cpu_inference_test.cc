@@ -53,8 +53,8 @@ TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
                      << layers << " conditioned layers, node conditioning "
                      << options.node_conditioning << ", node output rows "
                      << options.node_output_dim << ", pooled " << options.pooled_point_rows
-                     << ", shortcut " << options.descriptor_shortcut << ", mask "
-                     << (mask != nullptr));
+                     << ", shortcut " << options.descriptor_shortcut << ", shared trunk "
+                     << options.shared_trunk << ", mask " << (mask != nullptr));
         ExpectSamePredictions(
             network.Predict(descriptors, images, fixture.tree, mask),
             NetworkInternals::PredictWithTorch(network, descriptors, images, fixture.tree, mask));
@@ -78,23 +78,17 @@ TEST(NetworkCpuInferenceTest, NodeOutputRowsGiveNoProbabilityToMissingChildren) 
 }
 
 TEST(NetworkCpuInferenceTest, LevelsWithoutChoiceTakeTheOnlyChildWithCertainty) {
-  // 60 points under branching 12: the third level only ever has one child.
-  Random random(21);
-  std::vector<Eigen::Vector3d> points(60);
-  for (Eigen::Vector3d& point : points) point = {random.Uniform(0, 9), random.Uniform(0, 9), 0};
-  LabelTreeOptions tree_options;
-  tree_options.levels = 3;
-  tree_options.branching = 12;
-  tree_options.show_progress = false;
-  const LabelTree tree = LabelTree::Build(points, tree_options);
+  const LabelTree tree = testing_support::SixtyPointTree();
   ASSERT_FALSE(tree.LevelHasChoice(2));
   const NetworkShape shape = NetworkShape::ForTree(16, tree, 4);
   const Network network(shape, testing_support::SmallOptions(), 5);
   const DescriptorMatrix descriptors = RandomDescriptors(200, shape.descriptor_dim, 6);
   const std::vector<uint32_t> images = {0, 3, 4};
+  Random random(22);
+  const uint32_t num_points = 60;
   std::vector<uint32_t> seen_images, seen_points;
   for (uint32_t image = 0; image < 4; ++image) {
-    for (uint32_t point = 0; point < points.size(); ++point) {
+    for (uint32_t point = 0; point < num_points; ++point) {
       if (random.Bernoulli(0.3)) {
         seen_images.push_back(image);
         seen_points.push_back(point);
@@ -102,7 +96,7 @@ TEST(NetworkCpuInferenceTest, LevelsWithoutChoiceTakeTheOnlyChildWithCertainty) 
     }
   }
   const Visibility visibility =
-      Visibility::FromObservations(4, points.size(), seen_images, seen_points);
+      Visibility::FromObservations(4, num_points, seen_images, seen_points);
   for (const Visibility* mask : {static_cast<const Visibility*>(nullptr), &visibility}) {
     SCOPED_TRACE(testing::Message() << "mask " << (mask != nullptr));
     const PointPredictions masked_or_not = network.Predict(descriptors, images, tree, mask);

@@ -113,6 +113,7 @@ int ComputeThreads();
 // Network::Predict on the CPU kernels (model/dense_kernels.h); inputs already checked.
 PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& descriptors,
                               const std::vector<uint32_t>& image_indices, const LabelTree& tree,
-                              const Visibility* visibility_mask, DescriptorLayerCache* cache);
+                              const Visibility* visibility_mask, DescriptorLayerCache* cache,
+                              const PointRowIndex* index);
 
 }  // namespace hscloc

@@ -55,10 +55,15 @@ struct LevelWeights {
 // One level of the network (see model/network.h for the equations).
 class LevelImpl : public torch::nn::Module {
  public:
-  LevelImpl(int level, const NetworkShape& shape, const NetworkOptions& options);
+  // With `trunk_owner`, the level runs that level's trunk (NetworkOptions::shared_trunk) and
+  // registers none of its own: the trunk's parameters belong to the owner alone.
+  LevelImpl(int level, const NetworkShape& shape, const NetworkOptions& options,
+            const LevelImpl* trunk_owner = nullptr);
 
   // [N, D] normalized descriptors -> [N, C].
   torch::Tensor Trunk(const torch::Tensor& descriptors);
+  // Whether the level's trunk is another level's (a shared trunk, not its first level).
+  bool BorrowsTrunk() const { return borrows_trunk_; }
   // image_indices [R], prefix_labels [R, level] and parent_nodes [R] (the tree node of the prefix;
   // int64) -> the modulation of R rows. Label-sum conditioning reads the labels, node
   // conditioning the parent nodes.
@@ -76,6 +81,10 @@ class LevelImpl : public torch::nn::Module {
   // The last conditioned layer's features [R, C] of R (descriptor, image, prefix) rows.
   torch::Tensor Features(const torch::Tensor& descriptors, const torch::Tensor& image_indices,
                          const torch::Tensor& prefix_labels, const torch::Tensor& parent_nodes);
+  // The same from the rows' trunk output [R, C] (Trunk), computed once for a shared trunk.
+  torch::Tensor FeaturesOfTrunk(const torch::Tensor& trunk, const torch::Tensor& image_indices,
+                                const torch::Tensor& prefix_labels,
+                                const torch::Tensor& parent_nodes);
   // [R, r + 1]: the projection of the features (plus the scaled unit descriptors [R, D] of the
   // same rows, with the descriptor shortcut) with a constant 1 appended (the rows' bias).
   torch::Tensor Project(const torch::Tensor& features, const torch::Tensor& unit_descriptors);
@@ -105,6 +114,7 @@ class LevelImpl : public torch::nn::Module {
   double input_scale_ = 1;
   torch::nn::Linear trunk1_{nullptr};
   torch::nn::Linear trunk2_{nullptr};
+  bool borrows_trunk_ = false;
   torch::nn::Embedding image_embedding_{nullptr};
   std::vector<torch::nn::Embedding> label_embeddings_;
   torch::nn::Linear generator_{nullptr};

@@ -3,8 +3,10 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <numeric>
 #include <sstream>
 
+#include "model/network_module.h"
 #include "model/network_test_support.h"
 
 namespace hscloc {
@@ -209,6 +211,74 @@ TEST(NetworkTest, LoadRejectsDataThatIsNoNetwork) {
         throw;
       },
       std::invalid_argument);
+}
+
+// A shared trunk is the first level's, held once: every level computes the same trunk output,
+// the network has one trunk's parameters, and a query does one trunk's work.
+TEST(NetworkTest, SharedTrunkIsOneTrunkForEveryLevel) {
+  const RandomMap map = MakeRandomMap(5);
+  NetworkOptions options = SmallOptions();
+  options.node_output_dim = 8;
+  options.pooled_point_rows = true;
+  const Network per_level(map.shape, options, 3);
+  options.shared_trunk = true;
+  Network shared(map.shape, options, 3);
+  std::vector<Level>& levels = NetworkInternals::Module(shared)->levels;
+  int levels_with_weights = 0;
+  for (const Level& level : levels) levels_with_weights += level->HasWeights();
+  ASSERT_GE(levels_with_weights, 2);
+  const int64_t d = map.shape.descriptor_dim;
+  const int64_t h = options.trunk_channels;
+  const int64_t c = options.channels;
+  const int64_t trunk_parameters = d * h + h + h * c + c;
+  EXPECT_EQ(per_level.NumParameters() - shared.NumParameters(),
+            (levels_with_weights - 1) * trunk_parameters);
+  int64_t named_trunk_parameters = 0;
+  for (const auto& item : NetworkInternals::Module(shared)->named_parameters()) {
+    if (item.key().find("trunk") != std::string::npos) {
+      EXPECT_EQ(item.key().rfind("level0.", 0), 0u) << item.key();
+      named_trunk_parameters += item.value().numel();
+    }
+  }
+  EXPECT_EQ(named_trunk_parameters, trunk_parameters);
+
+  torch::NoGradGuard no_grad;
+  const torch::Tensor descriptors = torch::randn({7, d});
+  const torch::Tensor first = levels[0]->Trunk(descriptors);
+  for (Level& level : levels) {
+    if (level->HasWeights()) EXPECT_TRUE(torch::equal(level->Trunk(descriptors), first));
+  }
+  EXPECT_FALSE(levels[0]->BorrowsTrunk());
+  EXPECT_TRUE(levels[1]->BorrowsTrunk());
+
+  const double trunk_flops = 2.0 * 100 * (d * h + h * c);
+  EXPECT_DOUBLE_EQ(per_level.PredictFlops(100, 3, map.tree) - shared.PredictFlops(100, 3, map.tree),
+                   (levels_with_weights - 1) * trunk_flops);
+
+  // Per-level trunks holding copies of the shared one compute the same, with more work.
+  Network copies(
+      map.shape,
+      [&] {
+        NetworkOptions per_level_options = options;
+        per_level_options.shared_trunk = false;
+        return per_level_options;
+      }(),
+      3);
+  const auto shared_weights = NetworkInternals::Module(shared)->named_parameters();
+  for (auto& item : NetworkInternals::Module(copies)->named_parameters()) {
+    std::string name = item.key();
+    if (name.find(".trunk") != std::string::npos) name = "level0" + name.substr(name.find('.'));
+    item.value().copy_(shared_weights[name]);
+  }
+  const DescriptorMatrix queries = RandomDescriptors(100, d, 4);
+  const PointPredictions of_shared = shared.Predict(queries, {0, 1, 2}, map.tree);
+  const PointPredictions of_copies = copies.Predict(queries, {0, 1, 2}, map.tree);
+  EXPECT_EQ(of_shared.labels, of_copies.labels);
+  EXPECT_EQ(of_shared.confidences, of_copies.confidences);
+  const auto total = [](const PointPredictions& predictions) {
+    return std::accumulate(predictions.level_flops.begin(), predictions.level_flops.end(), 0.0);
+  };
+  EXPECT_DOUBLE_EQ(total(of_copies) - total(of_shared), (levels_with_weights - 1) * trunk_flops);
 }
 
 TEST(NetworkTest, SeedDeterminesTheInitialWeights) {

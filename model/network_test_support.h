@@ -55,7 +55,8 @@ inline RandomMap MakeRandomMap(uint64_t seed) {
 }
 
 // The four combinations of the two per-node options (the first is the paper's network), then
-// pooled point rows, then pooled point rows at the descriptor's width with the descriptor shortcut.
+// pooled point rows, with a trunk per level and then shared, then pooled point rows at the
+// descriptor's width with the descriptor shortcut.
 inline std::vector<NetworkOptions> HeadVariants(NetworkOptions base, int descriptor_dim) {
   std::vector<NetworkOptions> variants;
   for (const bool node_conditioning : {false, true}) {
@@ -67,6 +68,9 @@ inline std::vector<NetworkOptions> HeadVariants(NetworkOptions base, int descrip
   }
   base.pooled_point_rows = true;
   variants.push_back(base);
+  base.shared_trunk = true;  // the large maps' default
+  variants.push_back(base);
+  base.shared_trunk = false;
   base.node_output_dim = descriptor_dim;
   base.descriptor_shortcut = true;
   variants.push_back(base);
@@ -85,6 +89,18 @@ inline Network WithRandomProjections(Network network, uint64_t seed) {
     }
   }
   return network;
+}
+
+// 60 points in a 3-level tree of branching 12: its third level only ever has one child.
+inline LabelTree SixtyPointTree() {
+  Random random(21);
+  std::vector<Eigen::Vector3d> points(60);
+  for (Eigen::Vector3d& point : points) point = {random.Uniform(0, 9), random.Uniform(0, 9), 0};
+  LabelTreeOptions tree_options;
+  tree_options.levels = 3;
+  tree_options.branching = 12;
+  tree_options.show_progress = false;
+  return LabelTree::Build(points, tree_options);
 }
 
 inline NetworkOptions SmallOptions() {

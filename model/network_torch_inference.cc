@@ -93,11 +93,17 @@ class TorchForwardPass {
     confidence_ = confidence_ * chosen_probability;
   }
 
+  // The level's trunk output; a shared trunk runs once, at the first level that borrows it.
+  torch::Tensor TrunkOf(LevelImpl& level) {
+    if (!level.BorrowsTrunk() || !trunk_.defined()) trunk_ = level.Trunk(descriptors_);
+    return trunk_;
+  }
+
   // The level's logits of every row. Rows with the same image and label prefix share their
   // modulation: the generator runs once per distinct key.
   torch::Tensor LevelLogits(Level level) {
     const int depth = level->level();
-    const torch::Tensor shared_linear = level->ConditionedLinear(0, level->Trunk(descriptors_));
+    const torch::Tensor shared_linear = level->ConditionedLinear(0, TrunkOf(*level));
     torch::Tensor key = row_image_.clone();
     for (int column = 0; column < depth; ++column) {
       key = key * shape_.branching + labels_.select(1, column);
@@ -202,6 +208,7 @@ class TorchForwardPass {
   torch::Tensor row_image_;       // [rows]
   torch::Tensor row_descriptor_;  // [rows]
   torch::Tensor labels_;          // [rows, levels so far]
+  torch::Tensor trunk_;           // [N, C]: the last owned trunk's output
   torch::Tensor confidence_;      // [rows]
   std::unique_ptr<NodeVisibilityMasks> masks_;
   // Pooled point rows: the candidates of the call's images, each row's slot, the table.

@@ -144,7 +144,8 @@ void WriteNetworkToBundle(const std::filesystem::path& bundle_dir, const Trainin
                      {"node_output_dim", network_options.node_output_dim},
                      {"pooled_point_rows", network_options.pooled_point_rows},
                      {"descriptor_shortcut", network_options.descriptor_shortcut},
-                     {"masked_decoding", network_options.masked_decoding}};
+                     {"masked_decoding", network_options.masked_decoding},
+                     {"shared_trunk", network_options.shared_trunk}};
   json["parameters"] = result.network.NumParameters();
   json["training"] = {
       {"iterations", result.iterations},

@@ -314,6 +314,7 @@ void Trainer::Step() {
 BatchLoss Trainer::Loss(const Batch& batch) {
   const torch::Tensor descriptors = NormalizeRows(batch.descriptors);
   BatchLoss result{torch::zeros({}, torch::TensorOptions().device(device_)), {}};
+  torch::Tensor trunk;  // a shared trunk's output, once per batch
   for (int level = 0; level < levels_; ++level) {
     if (!tree_.LevelHasChoice(level)) {
       // Nothing to learn: Predict takes the only child without running this level.
@@ -322,10 +323,11 @@ BatchLoss Trainer::Loss(const Batch& batch) {
     }
     Level& level_module = module_->levels[level];
     const torch::Tensor prefix = batch.labels.narrow(1, 0, static_cast<int64_t>(level));
+    if (!level_module->BorrowsTrunk() || !trunk.defined()) trunk = level_module->Trunk(descriptors);
+    const torch::Tensor features =
+        level_module->FeaturesOfTrunk(trunk, batch.images, prefix, batch.parent_nodes[level]);
     torch::Tensor logits;
     if (level_module->IsPooled()) {
-      const torch::Tensor features =
-          level_module->Features(descriptors, batch.images, prefix, batch.parent_nodes[level]);
       // The finest level with a choice owns the point rows; coarser levels pool over them as
       // they are, learning only to map a descriptor near its point's row. Their gradients, a
       // pull on every point of the true child and a push on all the others, would otherwise
@@ -336,8 +338,7 @@ BatchLoss Trainer::Loss(const Batch& batch) {
                                  batch.candidates[level], tree_.branching(), Pooling::kLogSumExp,
                                  options_.sparse_node_updates);
     } else {
-      logits = level_module->forward(descriptors, batch.images, prefix, batch.parent_nodes[level],
-                                     batch.child_nodes[level]);
+      logits = level_module->Logits(features, batch.child_nodes[level]);
     }
     if (batch.allowed[level].defined()) {
       logits = logits.masked_fill(batch.allowed[level].logical_not(),

@@ -130,6 +130,7 @@ TEST(TrainerOptionsTest, ChecksNameTheField) {
   EXPECT_TRUE(pooled.pooled_point_rows);
   EXPECT_FALSE(pooled.descriptor_shortcut);
   EXPECT_EQ(pooled.channels, NetworkOptions().channels);
+  EXPECT_TRUE(pooled.shared_trunk);
   EXPECT_GT(DefaultEpochs(20000, NetworkOptions{}), DefaultEpochs(2000000, NetworkOptions{}));
   EXPECT_LT(DefaultEpochs(600000, pooled), DefaultEpochs(600000, NetworkOptions{}));
   EXPECT_GE(DefaultNetworkOptions(100000, 256).node_output_dim,
@@ -144,6 +145,7 @@ TEST(TrainerOptionsTest, ChecksNameTheField) {
     EXPECT_EQ(small.node_output_dim, dim);
     EXPECT_LT(small.channels, NetworkOptions().channels);
     EXPECT_LT(small.trunk_channels, NetworkOptions().trunk_channels);
+    EXPECT_FALSE(small.shared_trunk);
     small.Check();
   }
 }
@@ -315,6 +317,22 @@ TEST_F(TinyCityTrainerTest, PooledPointRowsLearnAndAreDecodedWithTheMask) {
   EXPECT_FALSE(TrainNetwork(Map().scene, Map().tree, options).network.options().masked_decoding);
   options.visibility_softmax = true;
   EXPECT_TRUE(TrainNetwork(Map().scene, Map().tree, options).network.options().masked_decoding);
+}
+
+// Every level's loss trains the one trunk they share, as far as a trunk per level gets.
+TEST_F(TinyCityTrainerTest, SharedTrunkLearnsFromEveryLevel) {
+  TrainerOptions options = QuickOptions(400);
+  options.network.node_output_dim = 32;
+  options.network.pooled_point_rows = true;
+  options.network.shared_trunk = true;
+  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
+  EXPECT_TRUE(result.network.options().shared_trunk);
+  const NetworkEvaluation training =
+      EvaluateNetwork(result.network, Map().scene, Map().tree,
+                      TrainingObservations(Map().scene, options), &Map().visibility);
+  std::cout << fmt::format("tiny city, shared trunk: masked training leaf accuracy {:.4f}\n",
+                           training.leaf_accuracy);
+  EXPECT_GE(training.leaf_accuracy, 0.99);
 }
 
 TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {

@@ -64,6 +64,9 @@ NetworkOptions DefaultNetworkOptions(size_t num_points, int descriptor_dim) {
   options.node_output_dim = rows;
   options.pooled_point_rows = true;
   options.node_conditioning = DefaultNodeConditioning(options);
+  // At C = H = 512 the trunks were most of a query's work (docs/decisions.md, "Latency at Aachen
+  // scale"); the small maps' C = H = 128 trunks are not.
+  options.shared_trunk = true;
   return options;
 }
 

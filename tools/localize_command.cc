@@ -133,6 +133,9 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
                    "global-then-votes: inliers of the best candidate below which the votes' round "
                    "runs")
       ->capture_default_str();
+  command->add_flag("--exact-votes", options.exact_votes,
+                    "Score every point of the map in the votes' pass, also on a map large enough "
+                    "for the point row index");
   command->add_flag("--no-visibility-filter", arguments->no_visibility_filter,
                     "Keep matches to points the retrieved image does not see");
   command->add_flag("--every-keypoint", arguments->every_keypoint,

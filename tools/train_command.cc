@@ -37,6 +37,7 @@ struct TrainArguments {
   bool channels_given = false;
   bool trunk_channels_given = false;
   std::string output;  // shared, node, pooled, shortcut; empty: from the map's size
+  std::string trunk;   // shared, per-level; empty: from the map's size
   TrainerOptions options;
 };
 
@@ -151,6 +152,8 @@ int RunTrain(TrainArguments& arguments) {
     if (!arguments.channels_given) options.network.channels = defaults.channels;
     if (!arguments.trunk_channels_given) options.network.trunk_channels = defaults.trunk_channels;
   }
+  options.network.shared_trunk = arguments.trunk.empty() ? !arguments.paper && defaults.shared_trunk
+                                                         : arguments.trunk == "shared";
   if (!arguments.paper) {
     ChooseOutputLayers(arguments.output, defaults, descriptor_dim, arguments.node_output_dim_given,
                        options.network);
@@ -317,6 +320,12 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
                    fmt::format("Width H of each level's descriptor trunk, run once per keypoint "
                                "(default as --channels)"))
       ->each([arguments](const std::string&) { arguments->trunk_channels_given = true; });
+  command
+      ->add_option("--trunk", arguments->trunk,
+                   fmt::format("shared (one trunk for every level, run once per keypoint) or "
+                               "per-level; default from the map's size: shared from {} points",
+                               kMinPointsForNodeOutputRows))
+      ->check(CLI::IsMember({"shared", "per-level"}));
   command
       ->add_option("--embedding-dim", options.network.embedding_dim,
                    "Width of the image and label embeddings")
