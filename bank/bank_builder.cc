@@ -15,6 +15,7 @@
 #include "util/check.h"
 #include "util/logging.h"
 #include "util/random.h"
+#include "util/timer.h"
 
 namespace hscloc {
 namespace {
@@ -222,7 +223,27 @@ DescriptorBank BankFromSet(const fs::path& set_dir, const fs::path& work_dir,
   const auto night = OpenFeatureReader(night_features);
   return BankFromReconstruction(ReadColmapModel(triangulated), *day, night.get(),
                                 options.night_match_px, options.min_track_length, feature,
-                                set_dir.filename().string());
+                                BankSetName(set_dir));
+}
+
+std::string BankSetName(const fs::path& set_dir) {
+  fs::path normal = fs::absolute(set_dir).lexically_normal();
+  if (normal.filename().empty()) normal = normal.parent_path();
+  return normal.filename().string();
+}
+
+DescriptorBank BankFromSets(const std::vector<fs::path>& set_dirs, const fs::path& work_dir,
+                            const BankSetOptions& options, const BankSetDone& done) {
+  std::vector<DescriptorBank> banks;
+  for (size_t i = 0; i < set_dirs.size(); ++i) {
+    const Timer timer;
+    const fs::path work = work_dir / fmt::format("{}-{}", i + 1, BankSetName(set_dirs[i]));
+    banks.push_back(BankFromSet(set_dirs[i], work, options));
+    if (done) done(set_dirs[i], banks.back(), timer.ElapsedSeconds());
+  }
+  DescriptorBank bank = DescriptorBank::Concatenate(banks);
+  if (bank.NumTracks() == 0) ThrowInvalidArgument("the sets hold no track of two or more views");
+  return bank;
 }
 
 }  // namespace hscloc

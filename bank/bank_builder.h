@@ -6,8 +6,10 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <opencv2/core/mat.hpp>
 #include <string>
+#include <vector>
 
 #include "features/feature_extractor.h"
 #include "scene/descriptor_bank.h"
@@ -64,5 +66,20 @@ struct BankSetOptions {
 // the set when its folders are missing.
 DescriptorBank BankFromSet(const std::filesystem::path& set_dir,
                            const std::filesystem::path& work_dir, const BankSetOptions& options);
+
+// The name a set's tracks are recorded under in a bank: its folder's name, however the path is
+// written ("data/lund", "data/lund/" and "./data/lund" are all "lund").
+std::string BankSetName(const std::filesystem::path& set_dir);
+
+// Called after each set of BankFromSets with the set, its bank and the seconds it took.
+using BankSetDone =
+    std::function<void(const std::filesystem::path&, const DescriptorBank&, double seconds)>;
+
+// The banks of several sets concatenated, each set's work under `work_dir`/<number>-<name> (two
+// sets may share a folder name; an interrupted run resumes there). Throws std::invalid_argument
+// when the sets hold no track of two or more views.
+DescriptorBank BankFromSets(const std::vector<std::filesystem::path>& set_dirs,
+                            const std::filesystem::path& work_dir, const BankSetOptions& options,
+                            const BankSetDone& done = nullptr);
 
 }  // namespace hscloc

@@ -28,6 +28,13 @@ cv::Mat DaylightPhoto() {
   return photo;
 }
 
+TEST(BankSetNameTest, IsTheFolderNameHoweverThePathIsWritten) {
+  EXPECT_EQ(BankSetName("data/lund"), "lund");
+  EXPECT_EQ(BankSetName("data/lund/"), "lund");
+  EXPECT_EQ(BankSetName("./data/../data/lund"), "lund");
+  EXPECT_EQ(BankSetName("/srv/sets/kitti-07"), "kitti-07");
+}
+
 TEST(NightPhotoTest, IsDarkerWarmerAndTheSameForTheSameKey) {
   const cv::Mat day = DaylightPhoto();
   const NightTransformOptions options;
@@ -166,7 +173,17 @@ TEST(BankFromSetTest, LundWithXFeat) {
   options.extractor.xfeat.model_path = (weights / "xfeat.onnx").string();
   options.triangulation.colmap.colmap_executable = colmap;
   options.show_progress = false;
-  const DescriptorBank bank = BankFromSet(data, temp / "work", options);
+  // Through BankFromSets with the path written with a trailing slash: the set keeps its name.
+  int sets_done = 0;
+  const DescriptorBank bank =
+      BankFromSets({data.string() + "/"}, temp / "work", options,
+                   [&](const std::filesystem::path&, const DescriptorBank& set_bank, double) {
+                     ++sets_done;
+                     EXPECT_GT(set_bank.NumTracks(), 0u);
+                   });
+  EXPECT_EQ(sets_done, 1);
+  EXPECT_EQ(bank.sources(), std::vector<std::string>{"lund"});
+  EXPECT_TRUE(std::filesystem::is_directory(temp / "work" / "1-lund"));
   const double night_share =
       static_cast<double>(bank.NumNightViews()) / static_cast<double>(bank.NumViews());
   std::cout << fmt::format("lund, XFeat: {} tracks, {} views, {:.1f} % found again at night\n",

@@ -15,6 +15,7 @@
 #include <fstream>
 #include <iostream>
 #include <iterator>
+#include <regex>
 #include <stdexcept>
 #include <thread>
 
@@ -137,12 +138,11 @@ ServeRun MeasureServe(const std::string& hscloc, const fs::path& map_dir, const 
     text = ReadFileText(log);
   }
   run.rss_mb = ProcessResidentMegabytes(pid);
-  // "loaded and verified map M from D in S s"
-  const size_t at = text.find(" s\n", text.find("loaded and verified map"));
-  const size_t from = text.rfind(" in ", at);
-  if (at != std::string::npos && from != std::string::npos) {
-    run.load_seconds = std::stod(text.substr(from + 4, at - from - 4));
-  }
+  // "loaded and verified map M from D in S s; <matcher>": the line goes on past the seconds, so
+  // they are read where the line says them, not at its end.
+  static const std::regex kLoaded(R"(loaded and verified map \S+ from .* in ([0-9.]+) s)");
+  std::smatch loaded;
+  if (std::regex_search(text, loaded, kLoaded)) run.load_seconds = std::stod(loaded[1].str());
   kill(pid, SIGTERM);
   int status = 0;
   waitpid(pid, &status, 0);

@@ -321,6 +321,21 @@ TEST_F(CliTest, BadInputsFailWithAClearMessage) {
                 temp_ / "synth2.log"),
       0);
   EXPECT_THAT(ReadText(temp_ / "synth2.log"), HasSubstr("--appearance real needs --bank"));
+
+  // The demo's real appearance from a folder that is no photo set, and options of the synthetic
+  // city given to the real one: each refused before any work, nothing written.
+  EXPECT_EQ(
+      RunHscloc(fmt::format("demo --bank-set {} --out {}", Temp("not-a-set"), Temp("demo-out")),
+                temp_ / "demo.log"),
+      2);
+  EXPECT_THAT(
+      ReadText(temp_ / "demo.log"),
+      HasSubstr(fmt::format("photo set {}, which has no images/ and map/", Temp("not-a-set"))));
+  EXPECT_FALSE(fs::exists(Temp("demo-out/bank")));
+  EXPECT_NE(RunHscloc(fmt::format("demo --real --appearance random --out {}", Temp("demo-out")),
+                      temp_ / "demo2.log"),
+            0);
+  EXPECT_THAT(ReadText(temp_ / "demo2.log"), HasSubstr("are the synthetic city's, not --real's"));
 }
 
 }  // namespace

@@ -23,30 +23,19 @@ int RunBank(BankArguments& arguments) {
   const std::filesystem::path work = arguments.work.empty()
                                          ? std::filesystem::path(arguments.out + ".work")
                                          : std::filesystem::path(arguments.work);
-  std::vector<DescriptorBank> banks;
-  for (size_t i = 0; i < arguments.sets.size(); ++i) {
-    const std::string& set = arguments.sets[i];
-    const Timer timer;
-    const std::filesystem::path set_dir(set);
-    std::cerr << fmt::format("{}: {} of the photos and of their night versions\n", set,
-                             arguments.feature);
-    // Numbered: two sets may share a folder name.
-    const std::string name = std::filesystem::absolute(set_dir).lexically_normal().filename();
-    banks.push_back(
-        BankFromSet(set_dir, work / fmt::format("{}-{}", i + 1, name), arguments.options));
-    const DescriptorBank& bank = banks.back();
+  std::vector<std::filesystem::path> sets(arguments.sets.begin(), arguments.sets.end());
+  const auto report_set = [&](const std::filesystem::path& set, const DescriptorBank& bank,
+                              double seconds) {
     std::cout << fmt::format(
-        "{}: {} tracks, {} views ({:.2f} per track), {:.1f} % found again at night, {}\n", set,
-        bank.NumTracks(), bank.NumViews(),
+        "{}: {} tracks, {} views ({:.2f} per track), {:.1f} % found again at night, {}\n",
+        set.string(), bank.NumTracks(), bank.NumViews(),
         static_cast<double>(bank.NumViews()) / std::max<size_t>(1, bank.NumTracks()),
         100.0 * static_cast<double>(bank.NumNightViews()) / std::max<size_t>(1, bank.NumViews()),
-        FormatDuration(timer.ElapsedSeconds()));
-  }
-  const DescriptorBank bank = DescriptorBank::Concatenate(banks);
-  if (bank.NumTracks() == 0) {
-    std::cerr << "error: the sets hold no track of two or more views\n";
-    return 1;
-  }
+        FormatDuration(seconds));
+  };
+  std::cerr << fmt::format("{} of the photos and of their night versions, set by set\n",
+                           arguments.feature);
+  const DescriptorBank bank = BankFromSets(sets, work, arguments.options, report_set);
   bank.Save(arguments.out);
   std::cout << fmt::format("bank written to {}: {} tracks, {} views of {}-D {} descriptors\n",
                            arguments.out, bank.NumTracks(), bank.NumViews(), bank.dimension(),

@@ -1,10 +1,11 @@
 // hscloc demo: the whole product on an embedded default, end to end, in a few minutes. A synthetic
-// city (or, with --real, the Lund street set under data/: XFeat features extracted from its photos
-// and a map triangulated for them from its poses, or with --feature sift its SIFT database)
-// is generated, mapped and trained; a server starts on loopback; `hscloc-client batch` localizes
-// the day and night queries through it; the accuracy, the ablations and the latency per stage are
-// printed and written, with the error curves, a top view of the map and pictures of inlier
-// matches, into an HTML report.
+// city whose points look like real XFeat tracks (or, with --real, the Lund street set under data/:
+// XFeat features extracted from its photos and a map triangulated for them from its poses, or
+// with --feature sift its SIFT database) is generated, mapped and trained; a server starts on
+// loopback; `hscloc-client batch` localizes the day and night queries through it; the accuracy,
+// the ablations (nearest-neighbour matching among them) and the latency per stage are printed and
+// written, with the error curves, a top view of the map and pictures of inlier matches, into an
+// HTML report.
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
@@ -15,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "bank/bank_builder.h"
 #include "features/image_extraction.h"
 #include "localization/ablation.h"
 #include "localization/localizer.h"
@@ -51,6 +53,12 @@ struct DemoArguments {
   std::string feature = "xfeat";
   double minutes = 3;
   int64_t iterations = 3000;
+  // The synthetic city's appearance. "real": each point's views take the descriptors of a real
+  // XFeat track, made from the photo sets below on first use and kept under --out, so that the
+  // matchers meet real confusion between points; "random": a random unit vector per point, which
+  // every matcher localizes (docs/decisions.md).
+  std::string appearance = "real";
+  std::vector<std::string> bank_sets = {"data/lund", "data/kitti-07"};
 };
 
 // What the demo runs on, and what it promises: the share of queries of the first condition within
@@ -123,17 +131,64 @@ DemoInputs RealInputs(const DemoArguments& arguments, const fs::path& out, const
           0.8};
 }
 
-DemoInputs SyntheticInputs(const fs::path& out, const Timer& total) {
-  Section("synthetic city 'small'", total);
+// The descriptor bank of the real appearance: reused when the one under `out` was made from the
+// same sets, made otherwise (an interrupted run resumes from its work folder).
+std::shared_ptr<const DescriptorBank> DemoBank(const DemoArguments& arguments, const fs::path& out,
+                                               const Timer& total) {
+  std::vector<fs::path> sets;
+  std::vector<std::string> names;
+  for (const std::string& set : arguments.bank_sets) {
+    sets.push_back(fs::absolute(set));
+    names.push_back(BankSetName(set));
+    if (!fs::is_directory(sets.back() / "images") || !fs::is_directory(sets.back() / "map")) {
+      ThrowInvalidArgument(
+          "demo: the real appearance draws from the photo set {}, which has no images/ and map/ "
+          "(run from the repository root, pass --bank-set, or --appearance random)",
+          sets.back().string());
+    }
+  }
+  const fs::path path = out / "bank" / "real-xfeat.bank";
+  if (fs::exists(path)) {
+    auto bank = std::make_shared<const DescriptorBank>(DescriptorBank::Load(path));
+    if (bank->sources() == names) return bank;
+  }
+  Section(fmt::format("descriptor bank of real XFeat tracks from {} (made once, kept in {})",
+                      fmt::join(names, ", "), path.string()),
+          total);
+  BankSetOptions options;
+  options.extractor.type = FeatureType::kXFeat;
+  const auto report_set = [](const fs::path& set, const DescriptorBank& bank, double seconds) {
+    std::cout << fmt::format("{}: {} tracks, {} views, {:.1f} % found again at night, in {}\n",
+                             set.filename().string(), bank.NumTracks(), bank.NumViews(),
+                             100.0 * static_cast<double>(bank.NumNightViews()) /
+                                 static_cast<double>(std::max<size_t>(1, bank.NumViews())),
+                             FormatDuration(seconds));
+  };
+  const DescriptorBank bank = BankFromSets(sets, path.string() + ".work", options, report_set);
+  bank.Save(path);
+  return std::make_shared<const DescriptorBank>(bank);
+}
+
+DemoInputs SyntheticInputs(const DemoArguments& arguments, const fs::path& out,
+                           const Timer& total) {
+  std::shared_ptr<const DescriptorBank> bank;
+  if (arguments.appearance == "real") bank = DemoBank(arguments, out, total);
+  const std::string description =
+      bank == nullptr ? "synthetic city 'small'"
+                      : fmt::format(
+                            "synthetic city 'small' with the appearance of real XFeat "
+                            "tracks from {}",
+                            fmt::join(bank->sources(), ", "));
+  Section(description, total);
   SyntheticCityWriteOptions write_options;
   write_options.overwrite = true;
   const SyntheticCityStats stats = WriteSyntheticCity(
-      SyntheticCity(SyntheticCityOptions::Preset("small")), out / "city", write_options);
+      SyntheticCity(SyntheticCityOptions::Preset("small"), bank), out / "city", write_options);
   std::cout << fmt::format("{} database images, {} map points, {} day + {} night queries\n",
                            stats.num_database_images, stats.num_map_points, stats.num_day_queries,
                            stats.num_night_queries);
   const fs::path city = out / "city";
-  return {"synthetic city 'small'",
+  return {description,
           {city / "map", city / "features.h5", std::nullopt},
           {{"day", city / "queries" / "day_time_queries_with_intrinsics.txt"},
            {"night", city / "queries" / "night_time_queries_with_intrinsics.txt"}},
@@ -152,8 +207,11 @@ void TrainDemoNetwork(const DemoArguments& arguments, const fs::path& bundle) {
   train_options.max_iterations = arguments.iterations;
   train_options.max_minutes = arguments.minutes;
   train_options.holdout_fraction = arguments.real ? 0 : 0.05;
-  // The synthetic city's night queries carry descriptor noise of norm 0.8 (docs/decisions.md).
-  if (!arguments.real) train_options.augmentation.noise_norm = 0.8;
+  // The random appearance's night queries carry descriptor noise of norm 0.8 (docs/decisions.md);
+  // the real appearance's night is the bank's night photos, and trains as `hscloc train` does.
+  if (!arguments.real && arguments.appearance == "random") {
+    train_options.augmentation.noise_norm = 0.8;
+  }
   const TrainingResult result = TrainNetwork(map->scene(), map->label_tree(), train_options);
   std::cout << fmt::format("{} iterations in {}, final loss {:.3f}\n", result.iterations,
                            FormatDuration(result.seconds), result.final_loss);
@@ -192,13 +250,23 @@ fs::path LocalizeThroughServer(const DemoInputs& inputs, const fs::path& bundle,
 DemoReport InProcessReport(const DemoInputs& inputs, const fs::path& bundle,
                            const std::vector<NamedPose>& ground_truth,
                            const std::vector<NamedPose>& estimates) {
-  const Localizer localizer = Localizer::FromBundle(bundle);
+  // With the observations too, so that nearest-neighbour matching runs beside the network.
+  const auto map = LocalizationMap::Load(bundle, {.load_observations = true});
+  const Localizer localizer(map, map->network());
+  std::cout << fmt::format("the server ran {}\n",
+                           DescribeMatcher(localizer, ServiceOptions().localizer.matcher));
   const std::unique_ptr<FeatureReader> features = OpenFeatureReader(inputs.features);
   std::vector<AblationQuerySet> query_sets;
   for (const auto& [condition, list] : inputs.lists) {
     query_sets.push_back({condition, LoadQueries(list, *features)});
   }
-  const std::vector<AblationVariant> variants = StandardAblationVariants();
+  std::vector<AblationVariant> variants = StandardAblationVariants();
+  // The default pipeline with nearest-neighbour matching in place of the network: on the real
+  // appearance the two part ways, on the random one both localize every query.
+  AblationVariant nearest_neighbor = variants.back();
+  nearest_neighbor.name = "nearest-neighbour matching instead of the network (default otherwise)";
+  nearest_neighbor.options.matcher = Matcher::kNearestNeighbor;
+  variants.push_back(nearest_neighbor);
   AblationOptions ablation_options;
   ablation_options.keep_results = true;
   DemoReport report;
@@ -232,7 +300,7 @@ int RunDemo(const DemoArguments& arguments) {
   const fs::path out = fs::absolute(arguments.out);
   fs::create_directories(out);
   const DemoInputs inputs =
-      arguments.real ? RealInputs(arguments, out, total) : SyntheticInputs(out, total);
+      arguments.real ? RealInputs(arguments, out, total) : SyntheticInputs(arguments, out, total);
 
   Section("map", total);
   const MapBuildSummary summary = BuildMap(inputs.map, MapBuildOptions(), out / "map");
@@ -300,6 +368,17 @@ void AddDemoCommand(CLI::App& app, CommandRunner& run) {
                    "or sift (the set's database.db)")
       ->check(CLI::IsMember({"xfeat", "sift"}))
       ->capture_default_str();
+  command
+      ->add_option("--appearance", arguments->appearance,
+                   "The synthetic city's appearance: real (descriptors of real XFeat tracks from "
+                   "--bank-set) or random")
+      ->check(CLI::IsMember({"real", "random"}))
+      ->capture_default_str();
+  command
+      ->add_option("--bank-set", arguments->bank_sets,
+                   "A real photo set (images/ and map/) the real appearance draws from; "
+                   "repeatable")
+      ->capture_default_str();
   command->add_option("--out", arguments->out, "Output directory")->capture_default_str();
   command->add_option("--minutes", arguments->minutes, "Training time budget")
       ->capture_default_str();
@@ -308,7 +387,12 @@ void AddDemoCommand(CLI::App& app, CommandRunner& run) {
           ->add_option("--iterations", arguments->iterations,
                        "Training iteration budget (400 with --real unless given)")
           ->capture_default_str();
-  command->callback([&run, arguments, iterations] {
+  command->callback([&run, arguments, iterations, command] {
+    if (arguments->real &&
+        (command->count("--appearance") > 0 || command->count("--bank-set") > 0)) {
+      throw CLI::ValidationError(
+          "--appearance and --bank-set are the synthetic city's, not --real's");
+    }
     // Lund's few views per point over-fit with longer training (docs/decisions.md).
     if (arguments->real && iterations->count() == 0) arguments->iterations = 400;
     run = [arguments] { return RunDemo(*arguments); };
