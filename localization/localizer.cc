@@ -9,6 +9,7 @@
 #include <numeric>
 #include <utility>
 
+#include "localization/localizer_evaluation.h"
 #include "localization/matcher_choice.h"
 #include "localization/pooled_matches.h"
 #include "localization/rival_matches.h"
@@ -154,18 +155,6 @@ PoseResult Localizer::Localize(const LocalizationQuery& query) const {
   return Localize(query, options_);
 }
 
-// What EvaluateCandidates fills in as candidates are matched and posed.
-struct Localizer::Evaluation {
-  PoseResult result;
-  // One per candidate, after FilterVisible: every prediction, rivals for a point included (for
-  // RefineRoundWinner; empty where the matcher has no rivals or the options keep every keypoint).
-  std::vector<CandidateMatches> predictions;
-  std::vector<CandidateMatches> matches;        // one per candidate, as posed
-  std::vector<std::vector<char>> inlier_masks;  // one per candidate, empty until posed
-  // The network's descriptor-only layers, run once for the query's every prediction.
-  DescriptorLayerCache network_cache;
-};
-
 std::vector<LocalizationCandidate> Localizer::Retrieve(const LocalizationQuery& query,
                                                        const LocalizerOptions& options) const {
   std::vector<LocalizationCandidate> candidates;
@@ -307,130 +296,6 @@ std::vector<Eigen::Vector3d> Localizer::PointPositions(const CandidateMatches& m
   return positions;
 }
 
-AbsolutePoseResult Localizer::Pose(const LocalizationQuery& query, const CandidateMatches& matches,
-                                   const LocalizerOptions& options,
-                                   const std::vector<LocalizationCandidate>& candidates) const {
-  AbsolutePoseOptions pose_options = options.pose;
-  // Only a pose with more inliers than the best so far can win: RANSAC need not sample for less.
-  const int best = Choose(candidates);
-  if (best >= 0) pose_options.inliers_to_beat = candidates[best].num_inliers;
-  return EstimateAbsolutePose(query.camera, KeypointPixels(query, matches), PointPositions(matches),
-                              pose_options);
-}
-
-void Localizer::RefineRoundWinner(const LocalizationQuery& query, const LocalizerOptions& options,
-                                  size_t begin, Evaluation& evaluation) const {
-  const std::vector<LocalizationCandidate>& candidates = evaluation.result.candidates;
-  const int round_best = Choose(candidates, begin);
-  if (round_best < 0) return;
-  const auto best = static_cast<size_t>(round_best);
-  const CandidateMatches& predictions = evaluation.predictions[best];
-  LocalizationCandidate& candidate = evaluation.result.candidates[best];
-  // No rivals: every point had one keypoint, or the matcher or options left none.
-  if (predictions.size() == 0 || predictions.size() == evaluation.matches[best].size()) return;
-  CandidateMatches nearest = NearestKeypointPerPoint(
-      predictions, query.keypoints, query.camera, candidate.cam_from_world, map_->scene().points);
-  if (nearest.keypoints == evaluation.matches[best].keypoints) return;
-  AbsolutePoseResult pose =
-      RefineAbsolutePoseFrom(query.camera, KeypointPixels(query, nearest), PointPositions(nearest),
-                             candidate.cam_from_world, options.pose);
-  // Re-choosing by reprojection keeps every inlier of the pose it starts from (a point's nearest
-  // rival is within the threshold when any is); fewer after refinement means it went astray.
-  if (!pose.success || pose.num_inliers < candidate.num_inliers) return;
-  candidate.num_inliers = pose.num_inliers;
-  candidate.cam_from_world = pose.cam_from_world;
-  evaluation.matches[best] = std::move(nearest);
-  evaluation.inlier_masks[best] = std::move(pose.inlier_mask);
-}
-
-struct Localizer::FinalMatches {
-  Rigid3d cam_from_world;
-  int num_inliers = 0;
-  CandidateMatches matches;
-  std::vector<char> inlier_mask;
-  int num_candidates = 1;
-};
-
-Localizer::FinalMatches Localizer::PoolAgreeingCandidates(const LocalizationQuery& query,
-                                                          const LocalizerOptions& options,
-                                                          Evaluation& evaluation) const {
-  const auto best = static_cast<size_t>(evaluation.result.best_candidate);
-  const LocalizationCandidate& winner = evaluation.result.candidates[best];
-  FinalMatches final{winner.cam_from_world, winner.num_inliers, std::move(evaluation.matches[best]),
-                     std::move(evaluation.inlier_masks[best])};
-  if (options.final_pose == FinalPose::kWinner) return final;
-
-  // A candidate agrees when the winner's pose explains as many of its matches as a pose needs:
-  // a measure in pixels, whatever the map's scale, that a wrong image's matches rarely pass.
-  AbsolutePoseOptions counting = options.pose;
-  counting.refine = false;
-  // With the network's rival keypoints, all of them: the pooled pose chooses among them below.
-  const auto all_predictions = [&](size_t k, const CandidateMatches& matches) {
-    return evaluation.predictions[k].size() > 0 ? &evaluation.predictions[k] : &matches;
-  };
-  std::vector<const CandidateMatches*> agreeing = {all_predictions(best, final.matches)};
-  for (size_t k = 0; k < evaluation.matches.size(); ++k) {
-    const CandidateMatches& matches = evaluation.matches[k];
-    if (k == best || static_cast<int>(matches.size()) < options.pose.min_inliers) continue;
-    const AbsolutePoseResult under_winner =
-        RefineAbsolutePoseFrom(query.camera, KeypointPixels(query, matches),
-                               PointPositions(matches), winner.cam_from_world, counting);
-    if (under_winner.success) agreeing.push_back(all_predictions(k, matches));
-  }
-  if (agreeing.size() == 1) return final;
-
-  CandidateMatches pooled = UniteMatches(agreeing);
-  // Rivals for a point, from one candidate or several: the one the winner reprojects nearest
-  // stands for it (on Lund with SIFT, 25.jpg: 33 -> 38 inliers, 0.269 -> 0.221 m).
-  if (!pooled.confidences.empty()) {
-    pooled = NearestKeypointPerPoint(pooled, query.keypoints, query.camera, winner.cam_from_world,
-                                     map_->scene().points);
-  }
-  const std::vector<Eigen::Vector2d> pixels = KeypointPixels(query, pooled);
-  const std::vector<Eigen::Vector3d> positions = PointPositions(pooled);
-  // The winner's pose refined over the pool, not a new RANSAC: on the small city a RANSAC over
-  // the pool let a query whose inliers fill a narrow strip at one depth slide from 0.32 m to
-  // 4.3 m off for 2 more inliers; started from the winner, the refinement stays in its basin.
-  AbsolutePoseResult pose =
-      RefineAbsolutePoseFrom(query.camera, pixels, positions, winner.cam_from_world, options.pose);
-  if (!pose.success || pose.num_inliers < final.num_inliers) return final;
-  return {pose.cam_from_world, pose.num_inliers, std::move(pooled), std::move(pose.inlier_mask),
-          static_cast<int>(agreeing.size())};
-}
-
-int Localizer::Choose(const std::vector<LocalizationCandidate>& candidates, size_t begin) {
-  int best = -1;
-  for (size_t k = begin; k < candidates.size(); ++k) {
-    if (candidates[k].pose_found &&
-        (best < 0 || candidates[k].num_inliers > candidates[best].num_inliers)) {
-      best = static_cast<int>(k);
-    }
-  }
-  return best;
-}
-
-std::vector<size_t> Localizer::PoseOrder(const std::vector<LocalizationCandidate>& candidates,
-                                         size_t begin, size_t end, bool in_retrieval_order) {
-  std::vector<size_t> order(end - begin);
-  std::iota(order.begin(), order.end(), begin);
-  // The likely winner first, so that its inliers rule out the rest without their RANSAC.
-  if (!in_retrieval_order) {
-    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
-      return candidates[a].num_matches > candidates[b].num_matches;
-    });
-  }
-  return order;
-}
-
-bool Localizer::CannotBeChosen(const std::vector<LocalizationCandidate>& candidates, size_t k) {
-  const int best = Choose(candidates);
-  if (best < 0) return false;
-  // A pose's inliers are among its matches, and Choose keeps the first of equal candidates.
-  const int best_inliers = candidates[best].num_inliers;
-  const int matches = candidates[k].num_matches;
-  return matches < best_inliers || (matches == best_inliers && k > static_cast<size_t>(best));
-}
-
 void Localizer::EvaluateCandidates(const LocalizationQuery& query, const LocalizerOptions& options,
                                    size_t begin, size_t end, bool stop_when_accepted,
                                    Evaluation& evaluation) const {
@@ -466,9 +331,16 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
       candidates[k].evaluated = true;  // matched, and its matches may still join the pool
       continue;
     }
-    AbsolutePoseResult pose = Pose(query, evaluation.matches[k], options, candidates);
+    LocalizerOptions first_look = options;
+    const bool limited =
+        options.first_look_samples > 0 && options.first_look_samples < options.pose.max_iterations;
+    if (limited) first_look.pose.max_iterations = options.first_look_samples;
+    AbsolutePoseResult pose = Pose(query, evaluation.matches[k], first_look, candidates);
+    evaluation.first_look_only[k] =
+        limited && pose.num_iterations >= first_look.pose.max_iterations;
     LocalizationCandidate& candidate = candidates[k];
     candidate.evaluated = true;
+    candidate.ransac_samples = pose.num_iterations;
     candidate.pose_found = pose.success;
     candidate.num_inliers = pose.success ? pose.num_inliers : 0;
     candidate.cam_from_world = pose.cam_from_world;
@@ -483,6 +355,7 @@ void Localizer::EvaluateRound(const LocalizationQuery& query, const LocalizerOpt
   evaluation.predictions.resize(end);
   evaluation.matches.resize(end);
   evaluation.inlier_masks.resize(end);
+  evaluation.first_look_only.resize(end, 0);
   if (begin >= end) return;
   if (options.candidate_search == CandidateSearch::kAll) {
     EvaluateCandidates(query, options, begin, end, /*stop_when_accepted=*/false, evaluation);
@@ -551,6 +424,14 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   }
   const size_t num_candidates = result.candidates.size();
   if (num_candidates == 0) return fail("retrieval found no database image");
+  {
+    ScopedTimer timer(&result.timings.pose_ms);
+    // A better pose found now has not chosen among its rival keypoints yet.
+    if (CompleteFirstLooks(query, options, evaluation)) {
+      ScopedTimer refine_timer(&result.timings.refine_ms);
+      RefineRoundWinner(query, options, 0, evaluation);
+    }
+  }
 
   result.best_candidate = Choose(result.candidates);
   if (result.best_candidate < 0) {

@@ -117,6 +117,12 @@ struct LocalizerOptions {
   FinalPose final_pose = FinalPose::kPooled;
   // Inliers with which kUntilAccepted accepts a candidate and stops.
   int accept_candidate_inliers = 100;
+  // RANSAC samples a candidate first draws (of pose.max_iterations); a candidate that used them
+  // all draws the rest only after every retrieval round, and only for as long as it could still
+  // beat the best pose by then (AbsolutePoseOptions::inliers_to_beat). A query whose global
+  // candidates are all wrong then reaches the votes' round without sampling each of them to the
+  // full budget. 0: the full budget at once.
+  int first_look_samples = 500;
   // The explicit-matching baseline's ratio test and mutuality.
   NearestNeighborOptions nearest_neighbor;
   AbsolutePoseOptions pose;
@@ -152,6 +158,8 @@ struct LocalizationCandidate {
   int num_inliers = 0;
   bool pose_found = false;
   Rigid3d cam_from_world;
+  // RANSAC samples drawn for it: its first look and, where drawn, the rest of its budget.
+  int ransac_samples = 0;
 };
 
 struct PoseResult {
@@ -243,6 +251,10 @@ class Localizer {
   // `stop_when_accepted`, posing stops at the first candidate with accept_candidate_inliers.
   void EvaluateCandidates(const LocalizationQuery& query, const LocalizerOptions& options,
                           size_t begin, size_t end, bool stop_when_accepted,
+                          Evaluation& evaluation) const;
+  // The rest of the RANSAC budget for the candidates that drew only their first look, each kept
+  // when it finds a pose with more inliers; true when one was.
+  bool CompleteFirstLooks(const LocalizationQuery& query, const LocalizerOptions& options,
                           Evaluation& evaluation) const;
   // The order in which candidates [begin, end) are posed: retrieval order, or the most matches
   // first.

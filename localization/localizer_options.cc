@@ -72,6 +72,8 @@ void LocalizerOptions::Check() const {
   THROW_CHECK_MSG(vote_retrieval_below_inliers >= 0,
                   "LocalizerOptions.vote_retrieval_below_inliers = {}",
                   vote_retrieval_below_inliers);
+  THROW_CHECK_MSG(first_look_samples >= 0, "LocalizerOptions.first_look_samples = {} (0: none)",
+                  first_look_samples);
   nearest_neighbor.Check();
   pose.Check();
 }

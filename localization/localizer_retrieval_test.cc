@@ -35,6 +35,13 @@ Eigen::VectorXf MisleadingGlobalDescriptor(const LocalizationMap& map, const Rig
   return map.global_descriptors().row(static_cast<int64_t>(farthest)).transpose();
 }
 
+// Query q of `set` with the misleading global descriptor.
+LocalizationQuery Misled(const LocalizationMap& map, const QuerySet& set, size_t q) {
+  LocalizationQuery query = set.queries[q];
+  query.global_descriptor = MisleadingGlobalDescriptor(map, set.ground_truth[q].cam_from_world);
+  return query;
+}
+
 bool WithinQuarterMetreAndTwoDegrees(const NamedPose& truth, const PoseResult& result) {
   if (!result.success) return false;
   const std::vector<QueryPoseError> errors =
@@ -51,9 +58,7 @@ TEST_F(SmallCityLocalizerTest, PointVotesRecoverQueriesThatRetrievalSendsAstray)
   const size_t count = std::min<size_t>(set.queries.size(), 8);
   for (size_t q = 0; q < count; ++q) {
     SCOPED_TRACE(set.queries[q].name);
-    LocalizationQuery query = set.queries[q];
-    query.global_descriptor =
-        MisleadingGlobalDescriptor(localizer().map(), set.ground_truth[q].cam_from_world);
+    const LocalizationQuery query = Misled(localizer().map(), set, q);
     const PoseResult astray = localizer().Localize(query, global_only);
     ASSERT_EQ(astray.candidates.size(), 10u);
 
@@ -84,6 +89,62 @@ TEST_F(SmallCityLocalizerTest, PointVotesRecoverQueriesThatRetrievalSendsAstray)
   EXPECT_EQ(astray_within, 0) << "the misleading descriptor must mislead for the test to mean "
                                  "anything";
   EXPECT_EQ(recovered, static_cast<int>(count));
+}
+
+// A first round of wrong candidates costs their first looks, not RANSAC's whole budget each: the
+// rest of a candidate's budget is drawn after the votes' round, only while it could still win.
+TEST_F(SmallCityLocalizerTest, WrongGlobalCandidatesDrawOnlyTheirFirstLooks) {
+  const QuerySet& set = Set("day");
+  LocalizerOptions all_at_once;
+  all_at_once.first_look_samples = 0;
+  const LocalizerOptions first_looks;
+  ASSERT_GT(first_looks.first_look_samples, 0);
+  ASSERT_LT(first_looks.first_look_samples, first_looks.pose.max_iterations);
+  const size_t count = std::min<size_t>(set.queries.size(), 4);
+  for (size_t q = 0; q < count; ++q) {
+    SCOPED_TRACE(set.queries[q].name);
+    const LocalizationQuery query = Misled(localizer().map(), set, q);
+    const PoseResult whole = localizer().Localize(query, all_at_once);
+    const PoseResult looked = localizer().Localize(query, first_looks);
+    ASSERT_EQ(whole.candidates.size(), 20u);
+    ASSERT_EQ(looked.candidates.size(), 20u);
+    int whole_samples = 0;
+    int looked_samples = 0;
+    for (size_t k = 0; k < 10; ++k) {
+      whole_samples += whole.candidates[k].ransac_samples;
+      looked_samples += looked.candidates[k].ransac_samples;
+      EXPECT_LE(looked.candidates[k].ransac_samples, first_looks.pose.max_iterations);
+    }
+    std::cout << set.queries[q].name << ": the wrong candidates drew " << whole_samples
+              << " RANSAC samples at once, " << looked_samples << " with first looks\n";
+    // Without first looks, the wrong candidates sample to the cap before the votes are known.
+    EXPECT_GE(whole_samples, 5 * all_at_once.pose.max_iterations);
+    EXPECT_LT(looked_samples, whole_samples / 2);
+    EXPECT_TRUE(WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], whole));
+    EXPECT_TRUE(WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], looked));
+  }
+}
+
+// A candidate that used its first look draws the rest of the budget when it could still win: on
+// a query retrieved right, the winner and its inliers stay those of one full RANSAC, or better.
+TEST_F(SmallCityLocalizerTest, FirstLooksKeepTheWinnersOfRightRetrieval) {
+  const QuerySet& set = Set("night");
+  LocalizerOptions all_at_once;
+  all_at_once.first_look_samples = 0;
+  int whole_within = 0;
+  int looked_within = 0;
+  const size_t count = std::min<size_t>(set.queries.size(), 12);
+  for (size_t q = 0; q < count; ++q) {
+    const PoseResult whole = localizer().Localize(set.queries[q], all_at_once);
+    const PoseResult looked = localizer().Localize(set.queries[q]);
+    whole_within += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], whole);
+    looked_within += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], looked);
+    for (const LocalizationCandidate& candidate : looked.candidates) {
+      EXPECT_LE(candidate.ransac_samples, all_at_once.pose.max_iterations);
+    }
+  }
+  // RANSAC draws other samples after a first look, so a near tie may fall either way.
+  EXPECT_GE(looked_within, whole_within - 1);
 }
 
 TEST_F(SmallCityLocalizerTest, TheVotesRoundFollowsOnlyAFirstRoundBelowTheThreshold) {
@@ -240,6 +301,10 @@ TEST(LocalizerTest, RetrievalModeNamesRoundTrip) {
   options.vote_retrieval_below_inliers = -1;
   EXPECT_THAT(testing::InvalidArgumentMessage([&] { options.Check(); }),
               HasSubstr("vote_retrieval_below_inliers"));
+  options = LocalizerOptions();
+  options.first_look_samples = -1;
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { options.Check(); }),
+              HasSubstr("first_look_samples = -1"));
 }
 
 }  // namespace

@@ -156,6 +156,12 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
                    "Inliers that accept a candidate with --candidate-search until-accepted")
       ->capture_default_str();
   command
+      ->add_option("--first-look-samples", options.first_look_samples,
+                   "RANSAC samples a candidate draws before every retrieval round is done; the "
+                   "rest of its budget follows only while it could still win (0: all at once)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  command
       ->add_option("--final-pose", arguments->final_pose,
                    "pooled: the matches of every candidate that agrees with the winner's pose, "
                    "posed together; winner: the winning candidate's own pose (the paper)")
@@ -164,6 +170,10 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
   command
       ->add_option("--threshold", options.pose.max_reprojection_error_px,
                    "RANSAC inlier threshold in pixels")
+      ->capture_default_str();
+  command
+      ->add_option("--ransac-seed", options.pose.seed,
+                   "Seed of RANSAC's sampling (equal queries and seeds give equal poses)")
       ->capture_default_str();
   command->add_option("--device", arguments->device, "cpu or cuda")
       ->check(CLI::IsMember({"cpu", "cuda"}))

@@ -1,0 +1,35 @@
+// What the Localizer keeps of one query while its candidates are matched and posed: shared by
+// the stages in localizer.cc and the pose stage in localizer_pose_stage.cc, not part of the API.
+#pragma once
+
+#include <vector>
+
+#include "localization/localizer.h"
+#include "localization/pooled_matches.h"
+
+namespace hscloc {
+
+// What EvaluateCandidates fills in as candidates are matched and posed.
+struct Localizer::Evaluation {
+  PoseResult result;
+  // One per candidate, after FilterVisible: every prediction, rivals for a point included (for
+  // RefineRoundWinner; empty where the matcher has no rivals or the options keep every keypoint).
+  std::vector<CandidateMatches> predictions;
+  std::vector<CandidateMatches> matches;        // one per candidate, as posed
+  std::vector<std::vector<char>> inlier_masks;  // one per candidate, empty until posed
+  // One per candidate: it drew its first look's samples only (CompleteFirstLooks draws the rest).
+  std::vector<char> first_look_only;
+  // The network's descriptor-only layers, run once for the query's every prediction.
+  DescriptorLayerCache network_cache;
+};
+
+// The final pose and the matches it rests on (PoolAgreeingCandidates).
+struct Localizer::FinalMatches {
+  Rigid3d cam_from_world;
+  int num_inliers = 0;
+  CandidateMatches matches;
+  std::vector<char> inlier_mask;
+  int num_candidates = 1;
+};
+
+}  // namespace hscloc

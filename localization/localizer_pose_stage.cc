@@ -1,0 +1,154 @@
+// The Localizer's pose stage: RANSAC per candidate, the rest of the budget after first looks,
+// the round winner's rivals, and the final pose pooled over the candidates that agree.
+#include <algorithm>
+#include <numeric>
+#include <utility>
+
+#include "localization/localizer.h"
+#include "localization/localizer_evaluation.h"
+#include "localization/pooled_matches.h"
+#include "localization/rival_matches.h"
+
+namespace hscloc {
+
+AbsolutePoseResult Localizer::Pose(const LocalizationQuery& query, const CandidateMatches& matches,
+                                   const LocalizerOptions& options,
+                                   const std::vector<LocalizationCandidate>& candidates) const {
+  AbsolutePoseOptions pose_options = options.pose;
+  // Only a pose with more inliers than the best so far can win: RANSAC need not sample for less.
+  const int best = Choose(candidates);
+  if (best >= 0) pose_options.inliers_to_beat = candidates[best].num_inliers;
+  return EstimateAbsolutePose(query.camera, KeypointPixels(query, matches), PointPositions(matches),
+                              pose_options);
+}
+
+void Localizer::RefineRoundWinner(const LocalizationQuery& query, const LocalizerOptions& options,
+                                  size_t begin, Evaluation& evaluation) const {
+  const std::vector<LocalizationCandidate>& candidates = evaluation.result.candidates;
+  const int round_best = Choose(candidates, begin);
+  if (round_best < 0) return;
+  const auto best = static_cast<size_t>(round_best);
+  const CandidateMatches& predictions = evaluation.predictions[best];
+  LocalizationCandidate& candidate = evaluation.result.candidates[best];
+  // No rivals: every point had one keypoint, or the matcher or options left none.
+  if (predictions.size() == 0 || predictions.size() == evaluation.matches[best].size()) return;
+  CandidateMatches nearest = NearestKeypointPerPoint(
+      predictions, query.keypoints, query.camera, candidate.cam_from_world, map_->scene().points);
+  if (nearest.keypoints == evaluation.matches[best].keypoints) return;
+  AbsolutePoseResult pose =
+      RefineAbsolutePoseFrom(query.camera, KeypointPixels(query, nearest), PointPositions(nearest),
+                             candidate.cam_from_world, options.pose);
+  // Re-choosing by reprojection keeps every inlier of the pose it starts from (a point's nearest
+  // rival is within the threshold when any is); fewer after refinement means it went astray.
+  if (!pose.success || pose.num_inliers < candidate.num_inliers) return;
+  candidate.num_inliers = pose.num_inliers;
+  candidate.cam_from_world = pose.cam_from_world;
+  evaluation.matches[best] = std::move(nearest);
+  evaluation.inlier_masks[best] = std::move(pose.inlier_mask);
+}
+
+Localizer::FinalMatches Localizer::PoolAgreeingCandidates(const LocalizationQuery& query,
+                                                          const LocalizerOptions& options,
+                                                          Evaluation& evaluation) const {
+  const auto best = static_cast<size_t>(evaluation.result.best_candidate);
+  const LocalizationCandidate& winner = evaluation.result.candidates[best];
+  FinalMatches final{winner.cam_from_world, winner.num_inliers, std::move(evaluation.matches[best]),
+                     std::move(evaluation.inlier_masks[best])};
+  if (options.final_pose == FinalPose::kWinner) return final;
+
+  // A candidate agrees when the winner's pose explains as many of its matches as a pose needs:
+  // a measure in pixels, whatever the map's scale, that a wrong image's matches rarely pass.
+  AbsolutePoseOptions counting = options.pose;
+  counting.refine = false;
+  // With the network's rival keypoints, all of them: the pooled pose chooses among them below.
+  const auto all_predictions = [&](size_t k, const CandidateMatches& matches) {
+    return evaluation.predictions[k].size() > 0 ? &evaluation.predictions[k] : &matches;
+  };
+  std::vector<const CandidateMatches*> agreeing = {all_predictions(best, final.matches)};
+  for (size_t k = 0; k < evaluation.matches.size(); ++k) {
+    const CandidateMatches& matches = evaluation.matches[k];
+    if (k == best || static_cast<int>(matches.size()) < options.pose.min_inliers) continue;
+    const AbsolutePoseResult under_winner =
+        RefineAbsolutePoseFrom(query.camera, KeypointPixels(query, matches),
+                               PointPositions(matches), winner.cam_from_world, counting);
+    if (under_winner.success) agreeing.push_back(all_predictions(k, matches));
+  }
+  if (agreeing.size() == 1) return final;
+
+  CandidateMatches pooled = UniteMatches(agreeing);
+  // Rivals for a point, from one candidate or several: the one the winner reprojects nearest
+  // stands for it (on Lund with SIFT, 25.jpg: 33 -> 38 inliers, 0.269 -> 0.221 m).
+  if (!pooled.confidences.empty()) {
+    pooled = NearestKeypointPerPoint(pooled, query.keypoints, query.camera, winner.cam_from_world,
+                                     map_->scene().points);
+  }
+  const std::vector<Eigen::Vector2d> pixels = KeypointPixels(query, pooled);
+  const std::vector<Eigen::Vector3d> positions = PointPositions(pooled);
+  // The winner's pose refined over the pool, not a new RANSAC: on the small city a RANSAC over
+  // the pool let a query whose inliers fill a narrow strip at one depth slide from 0.32 m to
+  // 4.3 m off for 2 more inliers; started from the winner, the refinement stays in its basin.
+  AbsolutePoseResult pose =
+      RefineAbsolutePoseFrom(query.camera, pixels, positions, winner.cam_from_world, options.pose);
+  if (!pose.success || pose.num_inliers < final.num_inliers) return final;
+  return {pose.cam_from_world, pose.num_inliers, std::move(pooled), std::move(pose.inlier_mask),
+          static_cast<int>(agreeing.size())};
+}
+
+bool Localizer::CompleteFirstLooks(const LocalizationQuery& query, const LocalizerOptions& options,
+                                   Evaluation& evaluation) const {
+  std::vector<LocalizationCandidate>& candidates = evaluation.result.candidates;
+  LocalizerOptions rest = options;
+  rest.pose.max_iterations = options.pose.max_iterations - options.first_look_samples;
+  // Other samples than the first look's.
+  rest.pose.seed = options.pose.seed + 1;
+  bool improved = false;
+  for (const size_t k : PoseOrder(candidates, 0, candidates.size(), false)) {
+    if (!evaluation.first_look_only[k] || CannotBeChosen(candidates, k)) continue;
+    evaluation.first_look_only[k] = 0;
+    AbsolutePoseResult pose = Pose(query, evaluation.matches[k], rest, candidates);
+    LocalizationCandidate& candidate = candidates[k];
+    candidate.ransac_samples += pose.num_iterations;
+    if (!pose.success || pose.num_inliers <= candidate.num_inliers) continue;
+    improved = true;
+    candidate.pose_found = true;
+    candidate.num_inliers = pose.num_inliers;
+    candidate.cam_from_world = pose.cam_from_world;
+    evaluation.inlier_masks[k] = std::move(pose.inlier_mask);
+  }
+  return improved;
+}
+
+int Localizer::Choose(const std::vector<LocalizationCandidate>& candidates, size_t begin) {
+  int best = -1;
+  for (size_t k = begin; k < candidates.size(); ++k) {
+    if (candidates[k].pose_found &&
+        (best < 0 || candidates[k].num_inliers > candidates[best].num_inliers)) {
+      best = static_cast<int>(k);
+    }
+  }
+  return best;
+}
+
+std::vector<size_t> Localizer::PoseOrder(const std::vector<LocalizationCandidate>& candidates,
+                                         size_t begin, size_t end, bool in_retrieval_order) {
+  std::vector<size_t> order(end - begin);
+  std::iota(order.begin(), order.end(), begin);
+  // The likely winner first, so that its inliers rule out the rest without their RANSAC.
+  if (!in_retrieval_order) {
+    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+      return candidates[a].num_matches > candidates[b].num_matches;
+    });
+  }
+  return order;
+}
+
+bool Localizer::CannotBeChosen(const std::vector<LocalizationCandidate>& candidates, size_t k) {
+  const int best = Choose(candidates);
+  if (best < 0) return false;
+  // A pose's inliers are among its matches, and Choose keeps the first of equal candidates.
+  const int best_inliers = candidates[best].num_inliers;
+  const int matches = candidates[k].num_matches;
+  return matches < best_inliers || (matches == best_inliers && k > static_cast<size_t>(best));
+}
+
+}  // namespace hscloc
