@@ -326,15 +326,15 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
     }
   }
   ScopedTimer timer(&timings.pose_ms);
+  LocalizerOptions first_look = options;
+  const bool limited =
+      options.first_look_samples > 0 && options.first_look_samples < options.pose.max_iterations;
+  if (limited) first_look.pose.max_iterations = options.first_look_samples;
   for (const size_t k : PoseOrder(candidates, begin, end, stop_when_accepted)) {
     if (CannotBeChosen(candidates, k)) {
       candidates[k].evaluated = true;  // matched, and its matches may still join the pool
       continue;
     }
-    LocalizerOptions first_look = options;
-    const bool limited =
-        options.first_look_samples > 0 && options.first_look_samples < options.pose.max_iterations;
-    if (limited) first_look.pose.max_iterations = options.first_look_samples;
     AbsolutePoseResult pose = Pose(query, evaluation.matches[k], first_look, candidates);
     evaluation.first_look_only[k] =
         limited && pose.num_iterations >= first_look.pose.max_iterations;

@@ -96,6 +96,8 @@ Localizer::FinalMatches Localizer::PoolAgreeingCandidates(const LocalizationQuer
 
 bool Localizer::CompleteFirstLooks(const LocalizationQuery& query, const LocalizerOptions& options,
                                    Evaluation& evaluation) const {
+  const std::vector<char>& unfinished = evaluation.first_look_only;
+  if (std::find(unfinished.begin(), unfinished.end(), 1) == unfinished.end()) return false;
   std::vector<LocalizationCandidate>& candidates = evaluation.result.candidates;
   LocalizerOptions rest = options;
   rest.pose.max_iterations = options.pose.max_iterations - options.first_look_samples;
