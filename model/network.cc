@@ -83,7 +83,7 @@ torch::Tensor NormalizeRows(const torch::Tensor& rows) {
 }
 
 NetworkShape NetworkShape::ForTree(int descriptor_dim, const LabelTree& tree, int num_images) {
-  NetworkShape shape{descriptor_dim, tree.levels(), tree.branching(), num_images, {}};
+  NetworkShape shape{descriptor_dim, tree.levels(), tree.branching(), num_images, {}, {}};
   shape.nodes_per_depth.assign(tree.levels() + 1, 0);
   for (uint32_t node = 0; node < tree.NumNodes(); ++node) {
     ++shape.nodes_per_depth.at(tree.NodeLevel(node));
@@ -104,6 +104,11 @@ bool NetworkShape::FitsTree(const LabelTree& tree) const {
          nodes_per_depth == ForTree(descriptor_dim, tree, num_images).nodes_per_depth;
 }
 
+int64_t NetworkShape::NumPointRows() const {
+  if (!point_row_offsets.empty()) return point_row_offsets.back();
+  return nodes_per_depth.empty() ? 0 : nodes_per_depth.back();
+}
+
 void NetworkShape::Check() const {
   THROW_CHECK_MSG(descriptor_dim > 0, "NetworkShape.descriptor_dim = {}", descriptor_dim);
   THROW_CHECK_MSG(levels > 0, "NetworkShape.levels = {}", levels);
@@ -116,12 +121,22 @@ void NetworkShape::Check() const {
                        [](int64_t count) { return count > 0; })),
       "NetworkShape.nodes_per_depth: {} entries for {} levels, the root first",
       nodes_per_depth.size(), levels);
+  if (point_row_offsets.empty()) return;
+  THROW_CHECK_MSG(!nodes_per_depth.empty() &&
+                      static_cast<int64_t>(point_row_offsets.size()) == nodes_per_depth.back() + 1,
+                  "NetworkShape.point_row_offsets: {} entries for {} points",
+                  point_row_offsets.size(), nodes_per_depth.empty() ? 0 : nodes_per_depth.back());
+  THROW_CHECK_MSG(point_row_offsets[0] == 0, "NetworkShape.point_row_offsets must start at 0");
+  for (size_t i = 1; i < point_row_offsets.size(); ++i) {
+    THROW_CHECK_MSG(point_row_offsets[i] > point_row_offsets[i - 1],
+                    "NetworkShape.point_row_offsets: point {} has no row", i - 1);
+  }
 }
 
 bool NetworkShape::operator==(const NetworkShape& other) const {
   return descriptor_dim == other.descriptor_dim && levels == other.levels &&
          branching == other.branching && num_images == other.num_images &&
-         nodes_per_depth == other.nodes_per_depth;
+         nodes_per_depth == other.nodes_per_depth && point_row_offsets == other.point_row_offsets;
 }
 
 void NetworkOptions::Check() const {
@@ -408,8 +423,8 @@ HscNetImpl::HscNetImpl(const NetworkShape& shape, const NetworkOptions& options)
   }
   if (options.pooled_point_rows) {
     point_rows = register_parameter(
-        "point_rows", torch::zeros({shape.nodes_per_depth.at(shape.levels),
-                                    static_cast<int64_t>(options.node_output_dim) + 1}));
+        "point_rows",
+        torch::zeros({shape.NumPointRows(), static_cast<int64_t>(options.node_output_dim) + 1}));
     torch::NoGradGuard no_grad;
     InitializeOutputRows(point_rows, options.node_output_dim);
   }
@@ -423,6 +438,9 @@ void CheckOptionsFitShape(const NetworkShape& shape, const NetworkOptions& optio
     ThrowInvalidArgument(
         "NetworkShape.nodes_per_depth is empty, but NetworkOptions.node_conditioning or "
         "node_output_dim need the tree's node counts (NetworkShape::ForTree)");
+  }
+  if (!shape.point_row_offsets.empty() && !options.pooled_point_rows) {
+    ThrowInvalidArgument("NetworkShape.point_row_offsets need NetworkOptions.pooled_point_rows");
   }
   if (options.descriptor_shortcut && options.node_output_dim != shape.descriptor_dim) {
     ThrowInvalidArgument(

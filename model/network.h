@@ -81,13 +81,19 @@ struct NetworkShape {
   // Nodes of the label tree per depth, 0 (the root) .. levels; empty when unknown, which only the
   // paper's configuration (no per-node tables) allows.
   std::vector<int64_t> nodes_per_depth;
+  // Pooled point rows with several rows per point (prototypes, TrainerOptions::point_prototypes):
+  // the rows of the point of leaf rank l are [point_row_offsets[l], point_row_offsets[l + 1]);
+  // empty: one row per point, the row of a point its leaf rank.
+  std::vector<int64_t> point_row_offsets;
 
   // The shape of a network over `tree`, with its node counts.
   static NetworkShape ForTree(int descriptor_dim, const LabelTree& tree, int num_images);
   // The first node id of a depth (nodes are numbered breadth-first); needs nodes_per_depth.
   int64_t FirstNodeOfDepth(int depth) const;
-  // Whether the tree has the node counts this shape records.
+  // Whether the tree has the node counts (and points) this shape records.
   bool FitsTree(const LabelTree& tree) const;
+  // Rows of the pooled point table: one per point, or the prototypes' count.
+  int64_t NumPointRows() const;
   void Check() const;
   bool operator==(const NetworkShape& other) const;
 };

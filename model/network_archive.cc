@@ -25,8 +25,9 @@ constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
 // saved for a bundle. Version 6 added the descriptor shortcut. Version 7 stores no weights for a
 // level without a choice, and a bundle's matrices as 8-bit rows (docs/decisions.md). Version 8
 // added the shared trunk, stored once under its first level's names; older archives have a
-// trunk per level.
-constexpr int64_t kFormatVersion = 8;
+// trunk per level. Version 9 added the point rows' offsets of a network with several rows per
+// point; older archives have one.
+constexpr int64_t kFormatVersion = 9;
 constexpr int64_t kFirstFlatWeightsVersion = 5;
 // The per-row scales of a matrix stored as 8-bit rows, under the matrix's name plus this suffix.
 constexpr char kRowScalesSuffix[] = ".row_scales";
@@ -145,6 +146,7 @@ void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputAr
        options.pooled_point_rows ? 1 : 0, options.masked_decoding ? 1 : 0,
        options.descriptor_shortcut ? 1 : 0, options.shared_trunk ? 1 : 0});
   WriteInt64Vector(archive, "nodes_per_depth", shape.nodes_per_depth);
+  WriteInt64Vector(archive, "point_row_offsets", shape.point_row_offsets);
   torch::serialize::OutputArchive weights;
   WriteWeights(network.impl_->module, storage, weights);
   archive.write("weights", weights);
@@ -175,6 +177,7 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
                      static_cast<int>(s[1]),
                      static_cast<int>(s[2]),
                      static_cast<int>(s[3]),
+                     {},
                      {}};
   NetworkOptions options = NetworkOptions::PaperFaithful();
   options.channels = static_cast<int>(o[0]);
@@ -199,6 +202,17 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
     nodes = nodes.contiguous();
     shape.nodes_per_depth.assign(nodes.data_ptr<int64_t>(),
                                  nodes.data_ptr<int64_t>() + nodes.numel());
+    if (format[1] >= 9) {
+      torch::Tensor offsets;
+      if (!archive.try_read("point_row_offsets", offsets) ||
+          offsets.scalar_type() != torch::kInt64 || offsets.dim() != 1) {
+        ThrowInvalidArgument("{}: not an hscloc network archive ('point_row_offsets' malformed)",
+                             source);
+      }
+      offsets = offsets.contiguous();
+      shape.point_row_offsets.assign(offsets.data_ptr<int64_t>(),
+                                     offsets.data_ptr<int64_t>() + offsets.numel());
+    }
   }
   try {
     shape.Check();

@@ -102,6 +102,32 @@ TEST(NetworkArchiveTest, CurrentVersionKeepsOutputTablesDecodingAndCounts) {
   }
 }
 
+TEST(NetworkArchiveTest, SeveralRowsPerPointKeepTheirOffsets) {
+  const RandomMap map = MakeRandomMap(12);
+  const NetworkShape shape = testing_support::WithPrototypeRows(map.shape);
+  NetworkOptions options = testing_support::SmallOptions();
+  options.node_conditioning = false;
+  options.pooled_point_rows = true;
+  options.masked_decoding = true;
+  const Network network(shape, options, 5);
+  std::stringstream stream;
+  network.Save(stream);
+  const Network loaded = Network::Load(stream, "prototypes.pt");
+  EXPECT_EQ(loaded.shape(), shape);
+  EXPECT_TRUE(loaded.HasSameWeights(AsStoredInABundle(network)));
+  const DescriptorMatrix descriptors = RandomDescriptors(60, shape.descriptor_dim, 8);
+  EXPECT_EQ(
+      loaded.Predict(descriptors, {0, 4}, map.tree, &map.visibility).labels,
+      AsStoredInABundle(network).Predict(descriptors, {0, 4}, map.tree, &map.visibility).labels);
+
+  NetworkShape without_rows = shape;
+  without_rows.point_row_offsets[5] = without_rows.point_row_offsets[4];
+  EXPECT_THROW(Network(without_rows, options, 5), std::invalid_argument);
+  NetworkOptions unpooled = options;
+  unpooled.pooled_point_rows = false;
+  EXPECT_THROW(Network(shape, unpooled, 5), std::invalid_argument);
+}
+
 // A bundle stores every matrix as 8-bit rows, each element within half a row's step of the
 // trained value, and every vector exactly; a checkpoint keeps all as trained.
 TEST(NetworkArchiveTest, BundlesStoreMatricesAsEightBitRowsAndCheckpointsEverything) {

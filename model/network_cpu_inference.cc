@@ -114,7 +114,8 @@ class CpuForwardPass {
       masks_ = std::make_unique<NodeVisibilityMasks>(image_indices, tree, *visibility_mask);
     }
     if (network.options().pooled_point_rows) {
-      candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices);
+      candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices,
+                                                      network.shape().point_row_offsets);
       point_rows_ = NetworkInternals::Module(network)->point_rows.data_ptr<float>();
       index_ = index;
     }
@@ -405,7 +406,7 @@ class CpuForwardPass {
         const size_t count = std::min(kChunk, span.size - first);
         // A whole range of ranks (every point under the parent) is already contiguous in the
         // table; only an image's list of ranks needs gathering.
-        const bool contiguous = span.ranks == nullptr;
+        const bool contiguous = span.rows == nullptr;
         const float* rows = contiguous ? point_rows + (span.first + first) * row_width
                                        : GatherRows(point_rows, span, first, count, scratch);
         FindSegments(span, first, count, depth, scratch);
@@ -493,7 +494,7 @@ class CpuForwardPass {
     scratch.segment_starts.clear();
     scratch.segment_groups.clear();
     for (size_t m = 0; m < count; ++m) {
-      const uint8_t group = candidates_->LabelOfRank(span[first + m], depth);
+      const uint8_t group = candidates_->LabelOfRow(span[first + m], depth);
       if (m == 0 || group != scratch.segment_groups.back()) {
         scratch.segment_starts.push_back(static_cast<uint32_t>(m));
         scratch.segment_groups.push_back(group);
@@ -566,10 +567,9 @@ PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& de
   cache->rows = descriptors.rows();
   cache->cols = descriptors.cols();
   cache->levels.resize(network.shape().levels);
-  if (index != nullptr &&
-      index->NumPoints() != static_cast<int64_t>(network.shape().nodes_per_depth.back())) {
-    ThrowInvalidArgument("Predict: a point row index of {} points for a network of {}",
-                         index->NumPoints(), network.shape().nodes_per_depth.back());
+  if (index != nullptr && index->NumPoints() != network.shape().NumPointRows()) {
+    ThrowInvalidArgument("Predict: a point row index of {} rows for a network of {}",
+                         index->NumPoints(), network.shape().NumPointRows());
   }
   return CpuForwardPass(network, descriptors, image_indices, tree, visibility_mask, *cache, index)
       .Run(network);

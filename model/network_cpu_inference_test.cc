@@ -63,6 +63,30 @@ TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
   }
 }
 
+// With several rows per point, both paths pool a point's rows (a child's best row wins), and a
+// point's prediction is the point of its best row.
+TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperatorsWithSeveralRowsPerPoint) {
+  const RandomMap fixture = MakeRandomMap(11);
+  const NetworkShape shape = testing_support::WithPrototypeRows(fixture.shape);
+  const DescriptorMatrix descriptors = RandomDescriptors(333, shape.descriptor_dim, 5);
+  const std::vector<uint32_t> images = {4, 0, 8, 4, 9, 7};  // 9: no image
+  NetworkOptions options;
+  options.channels = 48;
+  options.embedding_dim = 24;
+  options.trunk_channels = 40;
+  options.node_conditioning = false;
+  options.pooled_point_rows = true;
+  options.node_output_dim = shape.descriptor_dim;
+  options.descriptor_shortcut = true;
+  const Network network = testing_support::WithRandomProjections(Network(shape, options, 101), 201);
+  EXPECT_EQ(NetworkInternals::Module(network)->point_rows.size(0), shape.point_row_offsets.back());
+  for (const Visibility* mask : {static_cast<const Visibility*>(nullptr), &fixture.visibility}) {
+    ExpectSamePredictions(
+        network.Predict(descriptors, images, fixture.tree, mask),
+        NetworkInternals::PredictWithTorch(network, descriptors, images, fixture.tree, mask));
+  }
+}
+
 TEST(NetworkCpuInferenceTest, NodeOutputRowsGiveNoProbabilityToMissingChildren) {
   const RandomMap fixture = MakeRandomMap(13);
   NetworkOptions options = testing_support::SmallOptions();

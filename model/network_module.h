@@ -159,15 +159,18 @@ class HscNetImpl : public torch::nn::Module {
 };
 TORCH_MODULE(HscNet);
 
-// The candidate points of R rows at one level, flattened: point (leaf rank) i belongs to row
-// rows[i] and falls under child groups[i] of that row's parent. CPU int64 tensors [T].
+// The candidate point rows of R rows at one level, flattened: table row ranks[i] (a point's row,
+// PointCandidates) belongs to row rows[i] and falls under child groups[i] of that row's parent.
+// CPU int64 tensors [T].
 struct FlatCandidates {
   torch::Tensor ranks, rows, groups;
-  // Training only: each row's observed point (leaf rank) and the child it falls under, [R]. The
-  // true child then scores that point alone, so that every level is pulled towards the point
-  // itself rather than towards all the points of its child (which an untrained level cannot
-  // tell apart); the other children still pool all their candidates.
-  torch::Tensor true_ranks, true_groups;
+  // Training only: the table rows of each row's observed point, true_ranks[i] of row
+  // true_rows[i] ([T']; true_rows may be left undefined when there is one per row, in row
+  // order), and the child it falls under, [R]. The true child then scores that point alone (its
+  // best row), so that every level is pulled towards the point itself rather than towards all the
+  // points of its child (which an untrained level cannot tell apart); the other children still pool
+  // all their candidates.
+  torch::Tensor true_ranks, true_groups, true_rows;
 };
 // The candidates of rows [begin, end): row r pools over the points under parent_nodes[r] that
 // slot slots[r] observes (PointCandidates::Under); rows whose parent is < 0 get none. Row ids in

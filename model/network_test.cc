@@ -51,7 +51,7 @@ TEST(NetworkOptionsTest, ChecksNameTheField) {
         throw;
       },
       std::invalid_argument);
-  shape = NetworkShape{64, 4, 100, 10, {1, 100, 200}};  // 3 depths for 4 levels
+  shape = NetworkShape{64, 4, 100, 10, {1, 100, 200}, {}};  // 3 depths for 4 levels
   EXPECT_THROW(
       try { shape.Check(); } catch (const std::invalid_argument& error) {
         EXPECT_THAT(error.what(), HasSubstr("nodes_per_depth"));
@@ -246,7 +246,9 @@ TEST(NetworkTest, SharedTrunkIsOneTrunkForEveryLevel) {
   const torch::Tensor descriptors = torch::randn({7, d});
   const torch::Tensor first = levels[0]->Trunk(descriptors);
   for (Level& level : levels) {
-    if (level->HasWeights()) EXPECT_TRUE(torch::equal(level->Trunk(descriptors), first));
+    if (level->HasWeights()) {
+      EXPECT_TRUE(torch::equal(level->Trunk(descriptors), first));
+    }
   }
   EXPECT_FALSE(levels[0]->BorrowsTrunk());
   EXPECT_TRUE(levels[1]->BorrowsTrunk());

@@ -77,6 +77,16 @@ inline std::vector<NetworkOptions> HeadVariants(NetworkOptions base, int descrip
   return variants;
 }
 
+// The shape with several rows per point (NetworkShape::point_row_offsets): 1, 2 or 3 by leaf rank.
+inline NetworkShape WithPrototypeRows(NetworkShape shape) {
+  const int64_t points = shape.nodes_per_depth.back();
+  shape.point_row_offsets.assign(1, 0);
+  for (int64_t rank = 0; rank < points; ++rank) {
+    shape.point_row_offsets.push_back(shape.point_row_offsets.back() + 1 + rank % 3);
+  }
+  return shape;
+}
+
 // Beside the descriptor shortcut the projections start at zero, which would leave the layers
 // before them out of a comparison of two inference paths: they get random weights here.
 inline Network WithRandomProjections(Network network, uint64_t seed) {

@@ -48,7 +48,8 @@ class TorchForwardPass {
       masks_ = std::make_unique<NodeVisibilityMasks>(image_indices, tree, *visibility_mask);
     }
     if (network.options().pooled_point_rows) {
-      candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices);
+      candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices,
+                                                      network.shape().point_row_offsets);
       point_rows_ = NetworkInternals::Module(network)->point_rows;
       slot_of_row_.resize(num_rows_);
       for (int64_t row = 0; row < num_rows_; ++row) {

@@ -3,13 +3,28 @@
 #include <algorithm>
 #include <unordered_map>
 
+#include "util/check.h"
+
 namespace hscloc {
 
 PointCandidates::PointCandidates(const LabelTree& tree, const Visibility* visibility,
-                                 const std::vector<uint32_t>& images)
-    : tree_(tree) {
+                                 const std::vector<uint32_t>& images,
+                                 std::vector<int64_t> row_offsets)
+    : tree_(tree), row_offsets_(std::move(row_offsets)) {
   for (int depth = 0; depth < tree.levels(); ++depth) first_leaf_ = tree.FirstChild(first_leaf_);
   num_ranks_ = tree.NumNodes() - first_leaf_;
+  num_rows_ = num_ranks_;
+  if (!row_offsets_.empty()) {
+    THROW_CHECK_MSG(row_offsets_.size() == num_ranks_ + 1,
+                    "PointCandidates: {} row offsets for {} points", row_offsets_.size(),
+                    num_ranks_);
+    num_rows_ = static_cast<size_t>(row_offsets_.back());
+    rank_of_row_.resize(num_rows_);
+    for (uint32_t rank = 0; rank < num_ranks_; ++rank) {
+      std::fill(rank_of_row_.begin() + row_offsets_[rank],
+                rank_of_row_.begin() + row_offsets_[rank + 1], rank);
+    }
+  }
   slot_of_k_.assign(images.size(), -1);
   offsets_.push_back(0);
   std::unordered_map<uint32_t, int> slot_of_image;
@@ -20,13 +35,14 @@ PointCandidates::PointCandidates(const LabelTree& tree, const Visibility* visibi
         slot_of_image.emplace(image, static_cast<int>(offsets_.size()) - 1);
     slot_of_k_[k] = known->second;
     if (!inserted) continue;
-    const size_t begin = ranks_.size();
+    const size_t begin = rows_.size();
     for (const uint32_t* point = visibility->PointsBegin(image);
          point != visibility->PointsEnd(image); ++point) {
-      ranks_.push_back(RankOfPoint(*point));
+      const auto [first, end] = RowsOfPoint(*point);
+      for (uint32_t row = first; row < end; ++row) rows_.push_back(row);
     }
-    std::sort(ranks_.begin() + static_cast<std::ptrdiff_t>(begin), ranks_.end());
-    offsets_.push_back(ranks_.size());
+    std::sort(rows_.begin() + static_cast<std::ptrdiff_t>(begin), rows_.end());
+    offsets_.push_back(rows_.size());
   }
 }
 
@@ -44,13 +60,16 @@ uint32_t PointCandidates::FirstRankUnder(uint32_t node) const {
 }
 
 CandidateSpan PointCandidates::Under(int slot, uint32_t node) const {
-  const uint32_t first = FirstRankUnder(node);
+  const uint32_t first_rank = FirstRankUnder(node);
   const bool last_of_depth =
       node + 1 >= tree_.NumNodes() || tree_.NodeLevel(node + 1) != tree_.NodeLevel(node);
-  const uint32_t end = last_of_depth ? static_cast<uint32_t>(num_ranks_) : FirstRankUnder(node + 1);
+  const uint32_t end_rank =
+      last_of_depth ? static_cast<uint32_t>(num_ranks_) : FirstRankUnder(node + 1);
+  const uint32_t first = FirstRowOfRank(first_rank);
+  const uint32_t end = FirstRowOfRank(end_rank);
   if (slot < 0) return {nullptr, first, static_cast<size_t>(end - first)};
-  const uint32_t* begin = ranks_.data() + offsets_[slot];
-  const uint32_t* stop = ranks_.data() + offsets_[slot + 1];
+  const uint32_t* begin = rows_.data() + offsets_[slot];
+  const uint32_t* stop = rows_.data() + offsets_[slot + 1];
   const uint32_t* lower = std::lower_bound(begin, stop, first);
   const uint32_t* upper = std::lower_bound(lower, stop, end);
   return {lower, 0, static_cast<size_t>(upper - lower)};

@@ -105,10 +105,10 @@ PointRowIndex PointRowIndex::Build(const Network& network, const LabelTree& tree
   }
   const torch::Tensor table =
       NetworkInternals::Module(network)->point_rows.to(torch::kCPU).contiguous();
-  const PointCandidates ranks(tree, nullptr, {});
-  if (table.size(0) != static_cast<int64_t>(ranks.NumRanks())) {
-    ThrowInvalidArgument("point row index: {} point rows for a tree of {} points", table.size(0),
-                         ranks.NumRanks());
+  const PointCandidates ranks(tree, nullptr, {}, network.shape().point_row_offsets);
+  if (table.size(0) != static_cast<int64_t>(ranks.NumRows())) {
+    ThrowInvalidArgument("point row index: {} point rows where the tree and the network have {}",
+                         table.size(0), ranks.NumRows());
   }
   const float* rows = table.data_ptr<float>();
   const int64_t count = table.size(0);
@@ -148,7 +148,7 @@ PointRowIndex PointRowIndex::Build(const Network& network, const LabelTree& tree
   for (int64_t list = 0; list < lists; ++list) {
     const uint64_t begin = index.offsets_[list];
     for (uint64_t slot = begin; slot < index.offsets_[list + 1]; ++slot) {
-      const uint8_t label = ranks.LabelOfRank(index.ranks_[slot], 0);
+      const uint8_t label = ranks.LabelOfRow(index.ranks_[slot], 0);
       if (slot == begin || label != index.segment_labels_.back()) {
         index.segment_starts_.push_back(static_cast<uint32_t>(slot - begin));
         index.segment_labels_.push_back(label);

@@ -142,7 +142,7 @@ TEST(PointRowIndexTest, RefusesWhatDoesNotFit) {
                     map.tree, nullptr, nullptr, &foreign);
     FAIL() << "an index of another map's points";
   } catch (const std::invalid_argument& error) {
-    EXPECT_THAT(error.what(), HasSubstr("point row index of 60 points"));
+    EXPECT_THAT(error.what(), HasSubstr("point row index of 60 rows"));
   }
 }
 

@@ -18,14 +18,14 @@ FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* sl
     for (size_t i = 0; i < span.size; ++i) {
       ranks.push_back(span[i]);
       rows.push_back(r - begin);
-      groups.push_back(candidates.LabelOfRank(span[i], level));
+      groups.push_back(candidates.LabelOfRow(span[i], level));
     }
   }
   const auto tensor = [](std::vector<int64_t>& values) {
     return torch::from_blob(values.data(), {static_cast<int64_t>(values.size())}, torch::kInt64)
         .clone();
   };
-  return {tensor(ranks), tensor(rows), tensor(groups), {}, {}};
+  return {tensor(ranks), tensor(rows), tensor(groups), {}, {}, {}};
 }
 
 namespace {
@@ -74,6 +74,28 @@ torch::Tensor CellMaxima(const torch::Tensor& cells, const torch::Tensor& scores
   return maxima.to(scores.device());
 }
 
+// The score of each row's observed point [R]: its row's, or with several rows per point the best
+// of them (the maximum's gradient flows to that row alone).
+torch::Tensor TrueScores(const torch::Tensor& projected, const torch::Tensor& point_rows,
+                         const torch::Tensor& true_ranks, const torch::Tensor& true_rows,
+                         bool sparse_gradient) {
+  const int64_t num_rows = projected.size(0);
+  if (!true_rows.defined() || true_rows.size(0) == num_rows) {
+    return (GatherRows(point_rows, true_ranks, sparse_gradient) * projected).sum(1);
+  }
+  const torch::Tensor scores = CandidateScores(projected, point_rows, true_ranks,
+                                               true_rows.to(projected.device()), sparse_gradient);
+  const torch::Tensor cpu_rows = true_rows.to(torch::kCPU).contiguous();
+  const torch::Tensor cpu_scores = scores.detach().to(torch::kCPU).contiguous();
+  const int64_t* row = cpu_rows.data_ptr<int64_t>();
+  const float* score = cpu_scores.data_ptr<float>();
+  std::vector<int64_t> best(num_rows, -1);
+  for (int64_t i = 0; i < cpu_rows.numel(); ++i) {
+    if (best[row[i]] < 0 || score[i] > score[best[row[i]]]) best[row[i]] = i;
+  }
+  return scores.index_select(0, torch::tensor(best, torch::kInt64).to(scores.device()));
+}
+
 }  // namespace
 
 torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Tensor& point_rows,
@@ -101,8 +123,8 @@ torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Ten
   logits = logits.view({num_rows, branching});
   if (candidates.true_ranks.defined()) {
     const torch::Tensor true_scores =
-        (GatherRows(point_rows, candidates.true_ranks.to(device), sparse_gradient) * projected)
-            .sum(1);
+        TrueScores(projected, point_rows, candidates.true_ranks.to(device), candidates.true_rows,
+                   sparse_gradient);
     logits =
         logits.scatter(1, candidates.true_groups.to(device).unsqueeze(1), true_scores.unsqueeze(1));
   }

@@ -26,14 +26,14 @@ TEST(PointCandidatesTest, SpansHoldExactlyThePointsUnderTheNodeThatTheImageSees)
   const RandomMap map = MakeRandomMap(5);
   const std::vector<uint32_t> images = {3, 0, 3, 9};  // 9: the "no image" index
   const PointCandidates candidates(map.tree, &map.visibility, images);
-  EXPECT_EQ(candidates.NumRanks(), map.tree.NumPoints());
+  EXPECT_EQ(candidates.NumRows(), map.tree.NumPoints());
   EXPECT_EQ(candidates.SlotOf(0), candidates.SlotOf(2));
   EXPECT_NE(candidates.SlotOf(0), candidates.SlotOf(1));
   EXPECT_EQ(candidates.SlotOf(3), -1);
   for (uint32_t point = 0; point < map.tree.NumPoints(); ++point) {
     const uint32_t rank = candidates.RankOfPoint(point);
     for (int level = 0; level < map.tree.levels(); ++level) {
-      EXPECT_EQ(candidates.LabelOfRank(rank, level), map.tree.LabelsOfPoint(point)[level]);
+      EXPECT_EQ(candidates.LabelOfRow(rank, level), map.tree.LabelsOfPoint(point)[level]);
     }
   }
   for (size_t k = 0; k < images.size(); ++k) {
@@ -55,6 +55,62 @@ TEST(PointCandidatesTest, SpansHoldExactlyThePointsUnderTheNodeThatTheImageSees)
   }
 }
 
+// With several rows per point, a span holds every row of each point it would hold, side by side,
+// and each row is labelled as its point.
+TEST(PointCandidatesTest, SpansHoldEveryRowOfTheirPoints) {
+  const RandomMap map = MakeRandomMap(5);
+  const NetworkShape shape = testing_support::WithPrototypeRows(map.shape);
+  const std::vector<uint32_t> images = {3, 0, 9};
+  const PointCandidates one_row(map.tree, &map.visibility, images);
+  const PointCandidates candidates(map.tree, &map.visibility, images, shape.point_row_offsets);
+  EXPECT_EQ(static_cast<int64_t>(candidates.NumRows()), shape.point_row_offsets.back());
+  for (uint32_t point = 0; point < map.tree.NumPoints(); ++point) {
+    const auto [first, end] = candidates.RowsOfPoint(point);
+    const uint32_t rank = candidates.RankOfPoint(point);
+    EXPECT_EQ(end - first, 1 + rank % 3);
+    for (uint32_t row = first; row < end; ++row) {
+      EXPECT_EQ(candidates.LabelOfRow(row, map.tree.levels() - 1),
+                map.tree.LabelsOfPoint(point)[map.tree.levels() - 1]);
+    }
+  }
+  for (size_t k = 0; k < images.size(); ++k) {
+    for (uint32_t node = 0; node < map.tree.NumNodes(); ++node) {
+      const CandidateSpan points = one_row.Under(one_row.SlotOf(k), node);
+      std::vector<uint32_t> expected;
+      for (size_t i = 0; i < points.size; ++i) {
+        const uint32_t first = candidates.FirstRowOfRank(points[i]);
+        const uint32_t end = candidates.FirstRowOfRank(points[i] + 1);
+        for (uint32_t row = first; row < end; ++row) expected.push_back(row);
+      }
+      const CandidateSpan span = candidates.Under(candidates.SlotOf(k), node);
+      std::vector<uint32_t> actual;
+      for (size_t i = 0; i < span.size; ++i) actual.push_back(span[i]);
+      ASSERT_EQ(actual, expected) << "image " << images[k] << ", node " << node;
+    }
+  }
+}
+
+// In training the true child scores the observed point alone: with several rows, its best row.
+TEST(PooledPointLogitsTest, TheTruePointScoresItsBestRow) {
+  torch::manual_seed(6);
+  const torch::Tensor table = torch::randn({10, 5});
+  const torch::Tensor projected = torch::randn({2, 5});
+  FlatCandidates candidates{
+      torch::tensor({0, 1, 4}, torch::kInt64), torch::tensor({0, 0, 1}, torch::kInt64),
+      torch::tensor({0, 1, 2}, torch::kInt64),
+      // Row 0's point has rows 2, 3 and 7; row 1's has row 9 alone.
+      torch::tensor({2, 3, 7, 9}, torch::kInt64), torch::tensor({1, 0}, torch::kInt64),
+      torch::tensor({0, 0, 0, 1}, torch::kInt64)};
+  const auto score = [&](int64_t row, int64_t rank) {
+    return (table[rank] * projected[row]).sum().item<float>();
+  };
+  const torch::Tensor logits =
+      PooledPointLogits(projected, table, candidates, 3, Pooling::kLogSumExp);
+  EXPECT_NEAR(logits[0][1].item<float>(), std::max({score(0, 2), score(0, 3), score(0, 7)}), 1e-5);
+  EXPECT_NEAR(logits[1][0].item<float>(), score(1, 9), 1e-5);
+  EXPECT_NEAR(logits[0][0].item<float>(), score(0, 0), 1e-5);
+}
+
 TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
   torch::manual_seed(3);
   const int64_t rows = 3, dim = 4, branching = 5;
@@ -65,6 +121,7 @@ TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
   const FlatCandidates candidates{torch::tensor({2, 7, 5, 2}, torch::kInt64),
                                   torch::tensor({0, 0, 0, 1}, torch::kInt64),
                                   torch::tensor({1, 1, 4, 0}, torch::kInt64),
+                                  {},
                                   {},
                                   {}};
   const auto score = [&](int64_t row, int64_t rank) {
@@ -104,6 +161,7 @@ TEST(PooledPointLogitsTest, TrainingGradientReachesOnlyTheCandidatesRows) {
                                   torch::tensor({0, 0, 1}, torch::kInt64),
                                   torch::tensor({0, 2, 2}, torch::kInt64),
                                   {},
+                                  {},
                                   {}};
   const torch::Tensor logits =
       PooledPointLogits(projected, table, candidates, 4, Pooling::kLogSumExp);
@@ -124,7 +182,8 @@ TEST(PooledPointLogitsTest, TheSparseGradientEqualsTheDenseOneAndHoldsOnlyTheGat
                                   torch::tensor({0, 0, 0, 1, 1, 2, 2}, torch::kInt64),
                                   torch::tensor({0, 1, 1, 0, 3, 2, 3}, torch::kInt64),
                                   torch::tensor({10, 999, 6}, torch::kInt64),
-                                  torch::tensor({0, 3, 3}, torch::kInt64)};
+                                  torch::tensor({0, 3, 3}, torch::kInt64),
+                                  {}};
   const torch::Tensor targets = torch::tensor({0, 3, 3}, torch::kInt64);
   torch::Tensor gradients[2];
   for (const bool sparse : {false, true}) {

@@ -135,7 +135,8 @@ void WriteNetworkToBundle(const std::filesystem::path& bundle_dir, const Trainin
   json["shape"] = {{"descriptor_dim", shape.descriptor_dim},
                    {"levels", shape.levels},
                    {"branching", shape.branching},
-                   {"num_images", shape.num_images}};
+                   {"num_images", shape.num_images},
+                   {"point_rows", shape.NumPointRows()}};
   json["options"] = {{"channels", network_options.channels},
                      {"trunk_channels", network_options.trunk_channels},
                      {"embedding_dim", network_options.embedding_dim},

@@ -15,6 +15,8 @@
 #include "model/lazy_adam.h"
 #include "model/network_decoding.h"
 #include "model/network_module.h"
+#include "model/point_candidates.h"
+#include "model/point_prototypes.h"
 #include "model/training_batch.h"
 #include "model/training_checkpoint.h"
 #include "model/training_schedule.h"
@@ -40,38 +42,15 @@ void KeepFreedMemoryForReuse() {
   mallopt(M_TOP_PAD, 64 << 20);
 }
 
-// Pooled point rows start from the data: the row of point p is the unit vector along A x_p, the
-// sum over p's training observations x (unit descriptors) of a fixed Gaussian projection A
-// (r x D), or of the identity with the descriptor shortcut (the rows are then the points' class
-// means). Every level then starts as a nearest-neighbour matcher among the candidates in that
-// projected space and need only learn to map a descriptor near A x, a smooth function of it;
-// from random rows it must memorize which row is whose, which took far longer than the budget
-// at city scale (docs/decisions.md).
-void InitializePointRowsFromDescriptors(const Scene& scene, const std::vector<uint32_t>& training,
-                                        const PointCandidates& candidates, bool identity,
-                                        torch::Tensor& point_rows) {
-  torch::NoGradGuard no_grad;
-  const int64_t dim = scene.Dimension();
-  const int64_t rows_dim = point_rows.size(1) - 1;
-  const torch::Tensor projection = identity ? torch::eye(dim) : torch::randn({dim, rows_dim});
-  torch::Tensor sums = torch::zeros({point_rows.size(0), rows_dim});
-  constexpr size_t kBlock = 1 << 15;
-  for (size_t begin = 0; begin < training.size(); begin += kBlock) {
-    const size_t end = std::min(training.size(), begin + kBlock);
-    std::vector<int64_t> observations(training.begin() + begin, training.begin() + end);
-    std::vector<int64_t> ranks;
-    for (const int64_t observation : observations) {
-      ranks.push_back(candidates.RankOfPoint(scene.observation_point_indices[observation]));
-    }
-    const torch::Tensor all =
-        torch::from_blob(const_cast<float*>(scene.observation_descriptors.data()),
-                         {static_cast<int64_t>(scene.NumObservations()), dim}, torch::kFloat32);
-    const torch::Tensor block =
-        NormalizeRows(all.index_select(0, torch::tensor(observations, torch::kInt64)));
-    sums.index_add_(0, torch::tensor(ranks, torch::kInt64), block.mm(projection));
+NetworkShape TrainedNetworkShape(const Scene& scene, const LabelTree& tree,
+                                 const TrainerOptions& options,
+                                 const std::vector<uint32_t>& training) {
+  NetworkShape shape = NetworkShape::ForTree(static_cast<int>(scene.Dimension()), tree,
+                                             static_cast<int>(scene.NumImages()));
+  if (options.network.pooled_point_rows) {
+    shape.point_row_offsets = PointRowOffsets(scene, training, tree, options.point_prototypes);
   }
-  point_rows.narrow(1, 0, rows_dim).copy_(NormalizeRows(sums).to(point_rows.device()));
-  point_rows.select(1, rows_dim).zero_();
+  return shape;
 }
 
 NetworkOptions TrainedNetworkOptions(const TrainerOptions& options) {
@@ -178,8 +157,7 @@ Trainer::Trainer(const Scene& scene, const LabelTree& tree, const TrainerOptions
       options_(options),
       network_options_(TrainedNetworkOptions(options)),
       device_(TorchDevice(options.device)),
-      shape_(NetworkShape::ForTree(static_cast<int>(scene.Dimension()), tree,
-                                   static_cast<int>(scene.NumImages()))),
+      shape_(TrainedNetworkShape(scene, tree, options, training)),
       levels_(shape_.levels),
       training_(training),
       order_(std::move(training), options.seed) {
@@ -243,7 +221,8 @@ void Trainer::PrepareVisibilityAndCheckSample() {
   std::vector<uint32_t> all_images(scene_.NumImages());
   std::iota(all_images.begin(), all_images.end(), 0u);
   if (network_options_.pooled_point_rows) {
-    point_candidates_ = std::make_unique<PointCandidates>(tree_, &visibility_, all_images);
+    point_candidates_ = std::make_unique<PointCandidates>(tree_, &visibility_, all_images,
+                                                          shape_.point_row_offsets);
     for (int level = 0; level < levels_; ++level) {
       if (tree_.LevelHasChoice(level)) finest_level_with_choice_ = level;
     }
@@ -517,6 +496,9 @@ void DescriptorAugmentationOptions::Check() const {
 
 void TrainerOptions::Check() const {
   network.Check();
+  THROW_CHECK_MSG(point_prototypes >= 1 && point_prototypes <= kMaxPointPrototypes,
+                  "TrainerOptions.point_prototypes = {} (1 .. {})", point_prototypes,
+                  kMaxPointPrototypes);
   augmentation.Check();
   THROW_CHECK_MSG(max_iterations >= 0, "TrainerOptions.max_iterations = {}", max_iterations);
   THROW_CHECK_MSG(max_minutes >= 0 && std::isfinite(max_minutes), "TrainerOptions.max_minutes = {}",

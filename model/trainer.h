@@ -86,6 +86,10 @@ struct TrainerOptions {
   // few views per point the network leans less on memorized (image, descriptor) pairs
   // (docs/decisions.md).
   double image_dropout = 0.1;
+  // Pooled point rows: up to this many rows per point (prototypes), each started from the point's
+  // own training observations (model/point_prototypes.h). More than one placed Lund's XFeat
+  // queries no better (docs/decisions.md, "The network on real photos"): an option.
+  int point_prototypes = 1;
   // Fraction of observations held out from training (deterministic in holdout_seed), for
   // EvaluateNetwork on data the network never saw.
   double holdout_fraction = 0.05;
@@ -156,6 +160,8 @@ double DefaultEpochs(size_t num_training_observations, const NetworkOptions& net
 inline constexpr size_t kMinPointsForNodeOutputRows = 10000;
 // The width C = H of the default network on maps below kMinPointsForNodeOutputRows points.
 inline constexpr int kSmallMapChannels = 128;
+// The most rows per point TrainerOptions::point_prototypes allows.
+inline constexpr int kMaxPointPrototypes = 64;
 // Widths for a map of this many points and descriptors of this dimension: below
 // kMinPointsForNodeOutputRows points the descriptor shortcut at C = H = kSmallMapChannels (a few
 // views per point: the class means to start from, a small correction to learn); from there on

@@ -14,6 +14,8 @@
 
 #include "map/map_bundle.h"
 #include "model/network_test_support.h"
+#include "model/point_candidates.h"
+#include "model/point_prototypes.h"
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
 #include "scene/scene_io.h"
@@ -64,6 +66,16 @@ TrainerOptions QuickOptions(int64_t iterations) {
   options.image_dropout = 0;
   options.show_progress = false;
   options.log_every_iterations = 10;
+  return options;
+}
+
+// The small maps' network: pooled point rows at the descriptor's width with the shortcut.
+TrainerOptions ShortcutOptions(int64_t iterations, const Scene& scene) {
+  TrainerOptions options = QuickOptions(iterations);
+  options.network.node_conditioning = false;
+  options.network.node_output_dim = static_cast<int>(scene.Dimension());
+  options.network.pooled_point_rows = true;
+  options.network.descriptor_shortcut = true;
   return options;
 }
 
@@ -206,11 +218,8 @@ TEST_F(TinyCityTrainerTest, NearestClassMeanPlacesHeldOutObservationsByTheirPoin
 // sees (the rows at the class means, the projections at zero), checks that before its first step,
 // and keeps the best check: it ends no worse than the class means, short of sampling noise.
 TEST_F(TinyCityTrainerTest, DescriptorShortcutStartsAsTheClassMeansAndEndsNoWorse) {
-  TrainerOptions options = QuickOptions(60);
-  options.network.node_conditioning = false;
-  options.network.node_output_dim = static_cast<int>(Map().scene.Dimension());
-  options.network.pooled_point_rows = true;
-  options.network.descriptor_shortcut = true;
+  TrainerOptions options = ShortcutOptions(60, Map().scene);
+  options.point_prototypes = 1;
   options.evaluations = 3;
   const std::vector<uint32_t> held_out =
       HeldOutObservations(Map().scene, options.holdout_fraction, options.holdout_seed);
@@ -232,6 +241,78 @@ TEST_F(TinyCityTrainerTest, DescriptorShortcutStartsAsTheClassMeansAndEndsNoWors
   EXPECT_GE(trained.leaf_accuracy, p - 2 * standard_error - one);
   EXPECT_TRUE(result.network.options().descriptor_shortcut);
   EXPECT_TRUE(result.network.options().masked_decoding);
+}
+
+// The held-out accuracy of matching each held-out observation to the point of its most similar
+// training observation among the points its image sees: what a shortcut network with a row per
+// training view starts as.
+double NearestTrainingViewAccuracy(const CityMap& map, const std::vector<uint32_t>& training,
+                                   const std::vector<uint32_t>& held_out) {
+  const Scene& scene = map.scene;
+  DescriptorMatrix unit = scene.observation_descriptors;
+  NormalizeRows(unit);
+  size_t right = 0;
+  for (const uint32_t observation : held_out) {
+    const uint32_t image = scene.observation_image_indices[observation];
+    float best = -2;
+    uint32_t best_point = 0;
+    for (const uint32_t view : training) {
+      const uint32_t point = scene.observation_point_indices[view];
+      if (!map.visibility.IsVisible(image, point)) continue;
+      const float similarity = unit.row(observation).dot(unit.row(view));
+      if (similarity > best) {
+        best = similarity;
+        best_point = point;
+      }
+    }
+    right += best_point == scene.observation_point_indices[observation];
+  }
+  return static_cast<double>(right) / static_cast<double>(held_out.size());
+}
+
+// With as many rows per point as it has training views, the shortcut starts as the nearest
+// training view among the points each image sees (nearest-neighbour matching without its
+// filters); with fewer, a point's rows are spread over its views.
+TEST_F(TinyCityTrainerTest, PointPrototypesStartAsThePointsOwnViews) {
+  TrainerOptions options = ShortcutOptions(30, Map().scene);
+  options.evaluations = 1;
+  const std::vector<uint32_t> held_out =
+      HeldOutObservations(Map().scene, options.holdout_fraction, options.holdout_seed);
+  const std::vector<uint32_t> training = TrainingObservations(Map().scene, options);
+  options.evaluation_observations = static_cast<int64_t>(held_out.size());
+  const double one = 1.0 / static_cast<double>(held_out.size());
+  const std::vector<int64_t> views_per_point =
+      PointRowOffsets(Map().scene, training, Map().tree, 64);
+  ASSERT_EQ(views_per_point.size(), Map().tree.NumPoints() + 1);
+  EXPECT_GE(views_per_point.back(), static_cast<int64_t>(training.size()));
+
+  options.point_prototypes = 64;
+  const TrainingResult every_view = TrainNetwork(Map().scene, Map().tree, options);
+  EXPECT_EQ(every_view.network.shape().point_row_offsets, views_per_point);
+  ASSERT_FALSE(every_view.held_out_checks.empty());
+  EXPECT_EQ(every_view.held_out_checks.front().iteration, 0);
+  EXPECT_NEAR(every_view.held_out_checks.front().point_accuracy,
+              NearestTrainingViewAccuracy(Map(), training, held_out), one + 1e-9);
+
+  // Two rows: each starting row is the mean of a part of its point's views, the parts disjoint
+  // and both used, so a point of several views gets two distinct rows.
+  const std::vector<int64_t> two_rows = PointRowOffsets(Map().scene, training, Map().tree, 2);
+  const PointCandidates candidates(Map().tree, nullptr, {}, two_rows);
+  const std::vector<int64_t> starts = StartingRowOfObservations(Map().scene, training, candidates);
+  std::vector<int> views_of_row(two_rows.back(), 0);
+  std::vector<int> views_of_point(Map().scene.NumPoints(), 0);
+  for (const uint32_t view : training)
+    ++views_of_point[Map().scene.observation_point_indices[view]];
+  for (size_t i = 0; i < training.size(); ++i) {
+    const auto [first, end] =
+        candidates.RowsOfPoint(Map().scene.observation_point_indices[training[i]]);
+    ASSERT_GE(starts[i], first);
+    ASSERT_LT(starts[i], end);
+    ++views_of_row[starts[i]];
+  }
+  EXPECT_EQ(std::count(views_of_row.begin(), views_of_row.end(), 0),
+            std::count(views_of_point.begin(), views_of_point.end(), 0))
+      << "every row of a point with views starts from at least one";
 }
 
 TEST_F(TinyCityTrainerTest, ReachesNinetyNinePercentOnItsTrainingObservations) {

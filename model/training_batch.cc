@@ -230,11 +230,16 @@ Batch MakeBatch(const BatchContext& context, SampleOrder& order, int64_t iterati
       }
       candidates =
           GatherCandidates(*context.point_candidates, slots.data(), node.data(), 0, size, level);
-      std::vector<int64_t> true_ranks(size);
+      std::vector<int64_t> true_ranks, true_rows;
       for (int64_t row = 0; row < size; ++row) {
-        true_ranks[row] = context.point_candidates->RankOfPoint(drawn.points[row]);
+        const auto [first, end] = context.point_candidates->RowsOfPoint(drawn.points[row]);
+        for (uint32_t table_row = first; table_row < end; ++table_row) {
+          true_ranks.push_back(table_row);
+          true_rows.push_back(row);
+        }
       }
       candidates.true_ranks = torch::tensor(true_ranks, torch::kInt64);
+      candidates.true_rows = torch::tensor(true_rows, torch::kInt64);
       candidates.true_groups = drawn.labels.select(1, level).clone();
     } else if (tree.LevelHasChoice(level) && context.node_output && context.masks != nullptr) {
       // Only the candidates are gathered: the children the image sees (a few of up to

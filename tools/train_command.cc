@@ -348,6 +348,12 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
                    "Probability of training a sample without its image id")
       ->capture_default_str();
   command
+      ->add_option("--point-prototypes", options.point_prototypes,
+                   "Pooled point rows: rows per point at most, each started from the point's own "
+                   "training views")
+      ->check(CLI::Range(1, kMaxPointPrototypes))
+      ->capture_default_str();
+  command
       ->add_option("--holdout", options.holdout_fraction,
                    "Fraction of observations held out from training")
       ->capture_default_str();
