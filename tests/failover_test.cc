@@ -9,6 +9,7 @@
 #include <sys/socket.h>
 
 #include <atomic>
+#include <chrono>
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
@@ -267,7 +268,9 @@ TEST(FailoverTest, AMapUpdateRollsOverTheWorkersUnderLoadWithNoFailedRequest) {
   // The broker's Health names the map each worker serves, once both have announced the new one.
   ClientOptions broker_admin = testing::PatientClientOptions(broker.admin_endpoint());
   std::multiset<std::string> worker_maps;
-  for (int wait = 0; wait < 50; ++wait) {
+  // The deadline bounds a hang; a loaded machine may take seconds to announce.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (std::chrono::steady_clock::now() < deadline) {
     worker_maps.clear();
     const wire::HealthResponse health = LocalizationClient(broker_admin).Health();
     for (const wire::WorkerStatus& worker : health.worker_status()) {
