@@ -273,6 +273,7 @@ void Broker::ReceiveFromWorker(Clock::time_point now) {
     if (is_new) {
       spdlog::info("broker: worker joined with {} slots, serving {}", worker->second.slots, map_id);
       metrics_->CountWorkerJoined();
+      ++joined_;
     }
   } else if (frames.size() >= 4) {
     // A reply: worker id, sequence, the client's envelope, payload.

@@ -67,6 +67,7 @@ class Broker {
 
   size_t requests_retried() const { return retried_.load(); }
   size_t workers_dropped() const { return dropped_.load(); }
+  size_t workers_joined() const { return joined_.load(); }
 
  private:
   struct State;
@@ -98,6 +99,7 @@ class Broker {
   std::atomic<bool> stopping_{false};
   std::atomic<size_t> retried_{0};
   std::atomic<size_t> dropped_{0};
+  std::atomic<size_t> joined_{0};
 };
 
 }  // namespace hscloc

@@ -41,7 +41,14 @@ TEST(ScaleOutTest, AKilledWorkerLosesNoRequest) {
 
   const std::vector<wire::LocalizeRequest> requests = testing::DayQueryRequests(dir / "city", 30);
 
-  // Both workers load the map and announce themselves; the first request waits for them.
+  // Both workers load the map and announce themselves before any request: a worker killed before
+  // it joined would be one the broker never knew (on a loaded machine the second load may take
+  // far longer than the first requests). The deadline bounds a hang, not the load time.
+  const auto joined_by = std::chrono::steady_clock::now() + std::chrono::seconds(180);
+  while (broker.workers_joined() < 2 && std::chrono::steady_clock::now() < joined_by) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  ASSERT_EQ(broker.workers_joined(), 2u) << "the workers did not join within 180 s";
   ClientOptions client_options;
   client_options.servers = {front};
   client_options.timeout_ms = 120000;
