@@ -115,7 +115,7 @@ class CpuForwardPass {
     }
     if (network.options().pooled_point_rows) {
       candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices,
-                                                      network.shape().point_row_offsets);
+                                                      &network.shape().point_row_offsets);
       point_rows_ = NetworkInternals::Module(network)->point_rows.data_ptr<float>();
       index_ = index;
     }

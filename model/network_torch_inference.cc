@@ -49,7 +49,7 @@ class TorchForwardPass {
     }
     if (network.options().pooled_point_rows) {
       candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices,
-                                                      network.shape().point_row_offsets);
+                                                      &network.shape().point_row_offsets);
       point_rows_ = NetworkInternals::Module(network)->point_rows;
       slot_of_row_.resize(num_rows_);
       for (int64_t row = 0; row < num_rows_; ++row) {

@@ -9,21 +9,17 @@ namespace hscloc {
 
 PointCandidates::PointCandidates(const LabelTree& tree, const Visibility* visibility,
                                  const std::vector<uint32_t>& images,
-                                 std::vector<int64_t> row_offsets)
-    : tree_(tree), row_offsets_(std::move(row_offsets)) {
+                                 const std::vector<int64_t>* row_offsets)
+    : tree_(tree),
+      row_offsets_(row_offsets != nullptr && !row_offsets->empty() ? row_offsets : nullptr) {
   for (int depth = 0; depth < tree.levels(); ++depth) first_leaf_ = tree.FirstChild(first_leaf_);
   num_ranks_ = tree.NumNodes() - first_leaf_;
   num_rows_ = num_ranks_;
-  if (!row_offsets_.empty()) {
-    THROW_CHECK_MSG(row_offsets_.size() == num_ranks_ + 1,
-                    "PointCandidates: {} row offsets for {} points", row_offsets_.size(),
+  if (row_offsets_ != nullptr) {
+    THROW_CHECK_MSG(row_offsets_->size() == num_ranks_ + 1,
+                    "PointCandidates: {} row offsets for {} points", row_offsets_->size(),
                     num_ranks_);
-    num_rows_ = static_cast<size_t>(row_offsets_.back());
-    rank_of_row_.resize(num_rows_);
-    for (uint32_t rank = 0; rank < num_ranks_; ++rank) {
-      std::fill(rank_of_row_.begin() + row_offsets_[rank],
-                rank_of_row_.begin() + row_offsets_[rank + 1], rank);
-    }
+    num_rows_ = static_cast<size_t>(row_offsets_->back());
   }
   slot_of_k_.assign(images.size(), -1);
   offsets_.push_back(0);

@@ -9,6 +9,7 @@
 // node are one contiguous range of the table too.
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -34,10 +35,11 @@ class PointCandidates {
  public:
   // Sorted table rows of the points each of `images` observes, a slot per entry; an entry with no
   // visibility list (visibility null, or an index past its images: the "no image" id) gets no
-  // slot and pools over every point. `row_offsets`: NetworkShape::point_row_offsets (empty: one
-  // row per point).
+  // slot and pools over every point. `row_offsets`: NetworkShape::point_row_offsets, read in place
+  // (it must outlive the candidates, which are made per query); null or empty: one row per point.
   PointCandidates(const LabelTree& tree, const Visibility* visibility,
-                  const std::vector<uint32_t>& images, std::vector<int64_t> row_offsets = {});
+                  const std::vector<uint32_t>& images,
+                  const std::vector<int64_t>* row_offsets = nullptr);
 
   size_t NumRows() const { return num_rows_; }
   // The slot of entry k of the images given, -1 without one.
@@ -46,14 +48,21 @@ class PointCandidates {
   CandidateSpan Under(int slot, uint32_t node) const;
   // The label at `level` (0-based) of the point of a table row: the child it falls under there.
   LabelTree::Label LabelOfRow(uint32_t row, int level) const {
-    const uint32_t rank = rank_of_row_.empty() ? row : rank_of_row_[row];
-    return tree_.LabelsOfPoint(static_cast<uint32_t>(tree_.PointOfLeaf(first_leaf_ + rank)))[level];
+    return tree_.LabelsOfPoint(
+        static_cast<uint32_t>(tree_.PointOfLeaf(first_leaf_ + RankOfRow(row))))[level];
+  }
+  // The leaf rank of the point of a table row.
+  uint32_t RankOfRow(uint32_t row) const {
+    if (row_offsets_ == nullptr) return row;
+    return static_cast<uint32_t>(
+        std::upper_bound(row_offsets_->begin(), row_offsets_->end(), int64_t{row}) -
+        row_offsets_->begin() - 1);
   }
   // The leaf rank of a point.
   uint32_t RankOfPoint(uint32_t point_index) const;
   // The first table row of leaf rank `rank` (rank = the number of points: the table's end).
   uint32_t FirstRowOfRank(uint32_t rank) const {
-    return row_offsets_.empty() ? rank : static_cast<uint32_t>(row_offsets_[rank]);
+    return row_offsets_ == nullptr ? rank : static_cast<uint32_t>((*row_offsets_)[rank]);
   }
   // The table rows of a point: [first, end).
   std::pair<uint32_t, uint32_t> RowsOfPoint(uint32_t point_index) const {
@@ -68,8 +77,7 @@ class PointCandidates {
   uint32_t first_leaf_ = 0;  // node id of rank 0
   size_t num_ranks_ = 0;
   size_t num_rows_ = 0;
-  std::vector<int64_t> row_offsets_;
-  std::vector<uint32_t> rank_of_row_;  // empty with one row per point
+  const std::vector<int64_t>* row_offsets_ = nullptr;  // null with one row per point
   std::vector<int> slot_of_k_;
   std::vector<uint64_t> offsets_;  // slot s: rows_[offsets_[s], offsets_[s + 1])
   std::vector<uint32_t> rows_;

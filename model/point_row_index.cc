@@ -105,7 +105,7 @@ PointRowIndex PointRowIndex::Build(const Network& network, const LabelTree& tree
   }
   const torch::Tensor table =
       NetworkInternals::Module(network)->point_rows.to(torch::kCPU).contiguous();
-  const PointCandidates ranks(tree, nullptr, {}, network.shape().point_row_offsets);
+  const PointCandidates ranks(tree, nullptr, {}, &network.shape().point_row_offsets);
   if (table.size(0) != static_cast<int64_t>(ranks.NumRows())) {
     ThrowInvalidArgument("point row index: {} point rows where the tree and the network have {}",
                          table.size(0), ranks.NumRows());

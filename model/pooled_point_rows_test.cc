@@ -62,7 +62,7 @@ TEST(PointCandidatesTest, SpansHoldEveryRowOfTheirPoints) {
   const NetworkShape shape = testing_support::WithPrototypeRows(map.shape);
   const std::vector<uint32_t> images = {3, 0, 9};
   const PointCandidates one_row(map.tree, &map.visibility, images);
-  const PointCandidates candidates(map.tree, &map.visibility, images, shape.point_row_offsets);
+  const PointCandidates candidates(map.tree, &map.visibility, images, &shape.point_row_offsets);
   EXPECT_EQ(static_cast<int64_t>(candidates.NumRows()), shape.point_row_offsets.back());
   for (uint32_t point = 0; point < map.tree.NumPoints(); ++point) {
     const auto [first, end] = candidates.RowsOfPoint(point);

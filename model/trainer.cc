@@ -222,7 +222,7 @@ void Trainer::PrepareVisibilityAndCheckSample() {
   std::iota(all_images.begin(), all_images.end(), 0u);
   if (network_options_.pooled_point_rows) {
     point_candidates_ = std::make_unique<PointCandidates>(tree_, &visibility_, all_images,
-                                                          shape_.point_row_offsets);
+                                                          &shape_.point_row_offsets);
     for (int level = 0; level < levels_; ++level) {
       if (tree_.LevelHasChoice(level)) finest_level_with_choice_ = level;
     }

@@ -297,7 +297,7 @@ TEST_F(TinyCityTrainerTest, PointPrototypesStartAsThePointsOwnViews) {
   // Two rows: each starting row is the mean of a part of its point's views, the parts disjoint
   // and both used, so a point of several views gets two distinct rows.
   const std::vector<int64_t> two_rows = PointRowOffsets(Map().scene, training, Map().tree, 2);
-  const PointCandidates candidates(Map().tree, nullptr, {}, two_rows);
+  const PointCandidates candidates(Map().tree, nullptr, {}, &two_rows);
   const std::vector<int64_t> starts = StartingRowOfObservations(Map().scene, training, candidates);
   std::vector<int> views_of_row(two_rows.back(), 0);
   std::vector<int> views_of_point(Map().scene.NumPoints(), 0);
