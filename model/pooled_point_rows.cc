@@ -35,6 +35,10 @@ namespace {
 // heap rather than mapped and page-faulted in anew at every step.
 constexpr int64_t kPieceBytes = int64_t{16} << 20;
 
+// Candidate scores computes the dense [rows, distinct candidates] product where it holds at most
+// this many cells per candidate it needs.
+constexpr int64_t kDenseScoresPerCandidate = 4;
+
 // point_rows[ranks]; with a sparse gradient (embedding's) the backward pass touches only those
 // rows, where index_select's allocates and fills the whole table's gradient at every step.
 torch::Tensor GatherRows(const torch::Tensor& point_rows, const torch::Tensor& ranks,
@@ -48,6 +52,17 @@ torch::Tensor GatherRows(const torch::Tensor& point_rows, const torch::Tensor& r
 torch::Tensor CandidateScores(const torch::Tensor& projected, const torch::Tensor& point_rows,
                               const torch::Tensor& ranks, const torch::Tensor& rows,
                               bool sparse_gradient) {
+  // Where the rows share most of their candidates (a small map, whose images each see a large
+  // part of it), every row is scored against every distinct candidate by one matrix product:
+  // gathering a row and a point row per candidate instead moved up to a gigabyte per step.
+  const auto [distinct, position, counts] =
+      torch::_unique2(ranks, /*sorted=*/false, /*return_inverse=*/true);
+  (void)counts;
+  if (projected.size(0) * distinct.size(0) <= kDenseScoresPerCandidate * ranks.size(0)) {
+    const torch::Tensor all_scores =
+        torch::matmul(projected, GatherRows(point_rows, distinct, sparse_gradient).t());
+    return all_scores.view({-1}).index_select(0, rows * distinct.size(0) + position);
+  }
   const int64_t per_piece = std::max<int64_t>(
       1024, kPieceBytes / (point_rows.size(1) * static_cast<int64_t>(sizeof(float))));
   std::vector<torch::Tensor> pieces;

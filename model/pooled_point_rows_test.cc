@@ -153,6 +153,68 @@ TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
   EXPECT_NEAR(trained[2][2].item<float>(), score(2, 3), 1e-5);
 }
 
+// Logits and gradients against the definition, computed one candidate at a time, for rows that
+// share all their candidates (a small map, scored by one matrix product) and rows that share none
+// (scored by gathering each candidate's row).
+TEST(PooledPointLogitsTest, SharedAndDistinctCandidatesScoreAsTheirDefinition) {
+  torch::manual_seed(7);
+  const int64_t rows = 6, width = 5, branching = 3;
+  std::vector<int64_t> shared_ranks, shared_rows, shared_groups, own_ranks, own_rows, own_groups;
+  for (int64_t row = 0; row < rows; ++row) {
+    for (const int64_t rank : {4, 9, 11, 17, 30}) {
+      shared_ranks.push_back(rank);
+      shared_rows.push_back(row);
+      shared_groups.push_back(rank % branching);
+    }
+    for (int64_t i = 0; i < 2; ++i) {
+      own_ranks.push_back(40 + 2 * row + i);
+      own_rows.push_back(row);
+      own_groups.push_back((row + i) % branching);
+    }
+  }
+  const auto as_tensor = [](const std::vector<int64_t>& values) {
+    return torch::tensor(values, torch::kInt64);
+  };
+  const torch::Tensor start_table = torch::randn({60, width});
+  const torch::Tensor start_projected = torch::randn({rows, width});
+  const torch::Tensor targets = torch::tensor({0, 1, 2, 0, 1, 2}, torch::kInt64);
+  for (const bool shared : {true, false}) {
+    const FlatCandidates candidates{as_tensor(shared ? shared_ranks : own_ranks),
+                                    as_tensor(shared ? shared_rows : own_rows),
+                                    as_tensor(shared ? shared_groups : own_groups),
+                                    {},
+                                    {},
+                                    {}};
+    torch::Tensor table[2], projected[2], logits[2];
+    for (int pass = 0; pass < 2; ++pass) {
+      table[pass] = start_table.clone().requires_grad_(true);
+      projected[pass] = start_projected.clone().requires_grad_(true);
+    }
+    logits[0] =
+        PooledPointLogits(projected[0], table[0], candidates, branching, Pooling::kLogSumExp);
+    std::vector<torch::Tensor> cells(rows * branching);
+    for (int64_t i = 0; i < candidates.ranks.size(0); ++i) {
+      const int64_t row = candidates.rows[i].item<int64_t>();
+      const int64_t cell = row * branching + candidates.groups[i].item<int64_t>();
+      const torch::Tensor score =
+          (table[1][candidates.ranks[i].item<int64_t>()] * projected[1][row]).sum().unsqueeze(0);
+      cells[cell] = cells[cell].defined() ? torch::cat({cells[cell], score}) : score;
+    }
+    std::vector<torch::Tensor> pooled;
+    for (torch::Tensor& cell : cells) {
+      pooled.push_back(cell.defined() ? cell.logsumexp(0)
+                                      : torch::full({}, -std::numeric_limits<float>::infinity()));
+    }
+    logits[1] = torch::stack(pooled).view({rows, branching});
+    ASSERT_TRUE(torch::allclose(logits[0], logits[1], 1e-5, 1e-5)) << "shared: " << shared;
+    for (int pass = 0; pass < 2; ++pass) {
+      torch::nn::functional::cross_entropy(logits[pass], targets).backward();
+    }
+    EXPECT_TRUE(torch::allclose(table[0].grad(), table[1].grad(), 1e-5, 1e-6)) << shared;
+    EXPECT_TRUE(torch::allclose(projected[0].grad(), projected[1].grad(), 1e-5, 1e-6)) << shared;
+  }
+}
+
 TEST(PooledPointLogitsTest, TrainingGradientReachesOnlyTheCandidatesRows) {
   torch::manual_seed(4);
   torch::Tensor table = torch::randn({8, 3}).requires_grad_(true);
