@@ -16,6 +16,7 @@
 #include "map/map_blobs.h"
 #include "map/map_bundle.h"
 #include "util/check.h"
+#include "util/memory.h"
 #include "util/timer.h"
 
 namespace hscloc {
@@ -33,6 +34,8 @@ Localizer::Localizer(std::shared_ptr<const LocalizationMap> map,
                      std::shared_ptr<const Network> network, const LocalizerOptions& options)
     : map_(std::move(map)), network_(std::move(network)), options_(options) {
   THROW_CHECK_MSG(map_ != nullptr, "Localizer: no map");
+  // Every query allocates and frees the same megabytes of activations (docs/decisions.md).
+  KeepFreedMemoryForReuse();
   const Scene& scene = map_->scene();
   if (network_ != nullptr) {
     const NetworkShape& shape = network_->shape();

@@ -99,6 +99,20 @@ void NodeLogits(const float* projected, int64_t num_inputs, int64_t dim, const f
 
 namespace {
 
+// Eight points at a time, each with its own sum: eight independent chains of fused multiply-adds
+// keep both FMA units busy through their latency, where four chains left half of them idle.
+Packet BestOfEightPoints(const float* transposed, int64_t dim, const float* rows, int64_t width) {
+  Packet sums[8];
+  for (int p = 0; p < 8; ++p) sums[p] = ei::pset1<Packet>(rows[p * width + dim]);
+  for (int64_t d = 0; d < dim; ++d) {
+    const Packet x = ei::pload<Packet>(transposed + d * kLanes);
+    for (int p = 0; p < 8; ++p)
+      sums[p] = ei::pmadd(ei::pset1<Packet>(rows[p * width + d]), x, sums[p]);
+  }
+  return ei::pmax(ei::pmax(ei::pmax(sums[0], sums[1]), ei::pmax(sums[2], sums[3])),
+                  ei::pmax(ei::pmax(sums[4], sums[5]), ei::pmax(sums[6], sums[7])));
+}
+
 // Four points at a time, each with its own sum: independent chains of fused multiply-adds.
 Packet BestOfFourPoints(const float* transposed, int64_t dim, const float* rows, int64_t width) {
   const float* w0 = rows;
@@ -150,6 +164,10 @@ void PooledMaxLogits(const float* projected, int64_t num_inputs, int64_t dim,
       Packet best = ei::pset1<Packet>(-std::numeric_limits<float>::infinity());
       int64_t point = segment_starts[k];
       const int64_t end = segment_starts[k + 1];
+      for (; point + 8 <= end; point += 8) {
+        best = ei::pmax(
+            best, BestOfEightPoints(transposed.data(), dim, point_rows + point * width, width));
+      }
       for (; point + 4 <= end; point += 4) {
         best = ei::pmax(
             best, BestOfFourPoints(transposed.data(), dim, point_rows + point * width, width));
@@ -169,18 +187,27 @@ void PooledMaxLogits(const float* projected, int64_t num_inputs, int64_t dim,
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns) {
   for (int64_t row_index = 0; row_index < rows; ++row_index) {
     float* row = values + row_index * columns;
-    const float max = *std::max_element(row, row + columns);
+    int64_t live = columns;
+    while (live > 0 && row[live - 1] == -std::numeric_limits<float>::infinity()) --live;
+    std::fill(row + live, row + columns, 0.0f);
+    if (live == 0) {
+      // Every value -inf: exp(-inf - -inf) is NaN on every column, as over the whole row.
+      std::fill(row, row + columns, std::numeric_limits<float>::quiet_NaN());
+      continue;
+    }
+    const float max = *std::max_element(row, row + live);
     const Packet shift = ei::pset1<Packet>(max);
-    ForEachPacket(row, columns, row, [&](const Packet& x) { return ei::pexp(ei::psub(x, shift)); });
-    // A fixed summation order: packets from the row's start, then the lanes within a packet.
+    ForEachPacket(row, live, row, [&](const Packet& x) { return ei::pexp(ei::psub(x, shift)); });
+    // A fixed summation order: packets from the row's start, then the lanes within a packet. The
+    // zeros past `live` would add nothing to any lane.
     Packet sums = ei::pset1<Packet>(0);
     int64_t i = 0;
-    for (; i + kLanes <= columns; i += kLanes) sums = ei::padd(sums, ei::ploadu<Packet>(row + i));
+    for (; i + kLanes <= live; i += kLanes) sums = ei::padd(sums, ei::ploadu<Packet>(row + i));
     alignas(64) float tail[kLanes] = {};
-    std::copy(row + i, row + columns, tail);
+    std::copy(row + i, row + live, tail);
     sums = ei::padd(sums, ei::pload<Packet>(tail));
     const Packet inverse = ei::pset1<Packet>(1.f / ei::predux(sums));
-    ForEachPacket(row, columns, row, [&](const Packet& x) { return ei::pmul(x, inverse); });
+    ForEachPacket(row, live, row, [&](const Packet& x) { return ei::pmul(x, inverse); });
   }
 }
 

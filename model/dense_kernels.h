@@ -47,7 +47,9 @@ void PooledMaxLogits(const float* projected, int64_t num_inputs, int64_t dim,
                      const uint8_t* segment_groups, int64_t num_segments, int64_t out_columns,
                      float* out);
 
-// Each of `rows` rows of `columns` values replaced by its softmax.
+// Each of `rows` rows of `columns` values replaced by its softmax. A row's trailing -inf values
+// (children a parent does not have) become 0 without an exp each; the rest is summed in the same
+// order as over the whole row, so the result is the same to the bit.
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns);
 
 // The SIMD instruction sets the kernels were compiled for, e.g. "AVX512, FMA, AVX2, ...".

@@ -91,11 +91,36 @@ TEST(DenseKernelsTest, SoftmaxRowsArePositiveAndSumToOne) {
   }
 }
 
-// A row's result must not depend on its address: the same values at every offset within a
-// cache line give bit-identical outputs.
-// Every number of inputs (packet multiples, tails, fewer than a packet), segments of one to nine
-// points (the four-point steps and their tails), any width: the best score of each segment, summed
-// in double as a reference, and an output already above it left alone.
+// Children a parent does not have come as trailing -inf: they get exactly 0, and the others the
+// softmax of the live prefix alone, to the bit.
+TEST(DenseKernelsTest, SoftmaxRowsGiveTrailingMissingValuesNothing) {
+  Random random(5);
+  const int64_t columns = 100;
+  for (const int64_t live : {1, 5, 16, 17, 40, 99}) {
+    SCOPED_TRACE(testing::Message() << live << " live columns");
+    std::vector<float> row = Normal(columns, random);
+    std::fill(row.begin() + live, row.end(), -std::numeric_limits<float>::infinity());
+    std::vector<float> prefix(row.begin(), row.begin() + live);
+    double reference_sum = 0;
+    for (const float value : prefix) reference_sum += std::exp(double{value});
+    const std::vector<float> logits = prefix;
+    dense_kernels::SoftmaxRowsInPlace(row.data(), 1, columns);
+    dense_kernels::SoftmaxRowsInPlace(prefix.data(), 1, live);
+    for (int64_t i = 0; i < columns; ++i) {
+      if (i >= live) {
+        EXPECT_EQ(row[i], 0.0f) << i;
+        continue;
+      }
+      EXPECT_EQ(row[i], prefix[i]) << i;
+      EXPECT_NEAR(row[i], std::exp(double{logits[i]}) / reference_sum, 1e-6) << i;
+    }
+  }
+}
+
+// Every number of inputs (packet multiples, tails, fewer than a packet), segments of one to sixteen
+// points (the eight- and four-point steps and their tails; a child may own several segments), any
+// width: the best score of each segment, summed in double as a reference, and an output already
+// above it left alone.
 TEST(DenseKernelsTest, PooledMaxLogitsKeepsEachSegmentsBestScore) {
   Random random(5);
   const int64_t columns = 12;
@@ -104,7 +129,7 @@ TEST(DenseKernelsTest, PooledMaxLogitsKeepsEachSegmentsBestScore) {
       const std::vector<float> projected = Normal(inputs * dim, random);
       std::vector<uint32_t> starts = {0};
       std::vector<uint8_t> groups;
-      for (int64_t segment = 0; segment < 9; ++segment) {
+      for (int64_t segment = 0; segment < 16; ++segment) {
         starts.push_back(starts.back() + 1 + static_cast<uint32_t>(segment));
         groups.push_back(static_cast<uint8_t>((segment * 5) % columns));
       }
@@ -164,6 +189,8 @@ TEST(DenseKernelsTest, PooledMaxLogitsDoNotDependOnTheInputsPlace) {
   }
 }
 
+// A row's result must not depend on its address: the same values at every offset within a
+// cache line give bit-identical outputs.
 TEST(DenseKernelsTest, ResultsDoNotDependOnAlignment) {
   Random random(4);
   const int64_t columns = 100;

@@ -182,6 +182,52 @@ TEST(NetworkCpuInferenceTest, CountsTheWorkItDidNeverMoreThanTheShapesCount) {
             node_rows.PredictFlops(n, k, fixture.tree));
 }
 
+// Where missing children get no probability (node rows here), a row whose parent has one child
+// takes it with certainty and runs no layer: the finest level's work is that of the rows whose
+// parent offers a choice, and nothing more.
+TEST(NetworkCpuInferenceTest, RowsWhoseParentHasOneChildTakeItWithoutWork) {
+  const RandomMap fixture = MakeRandomMap(11);
+  const int64_t n = 500;
+  const std::vector<uint32_t> images = {1, 2, 3, 5, 8};
+  const DescriptorMatrix descriptors = RandomDescriptors(n, fixture.shape.descriptor_dim, 6);
+  NetworkOptions options = testing_support::SmallOptions();
+  options.node_output_dim = 8;
+  const Network network(fixture.shape, options, 7);
+  const PointPredictions predictions = network.Predict(descriptors, images, fixture.tree);
+  const int last = fixture.shape.levels - 1;
+  ASSERT_TRUE(fixture.tree.LevelHasChoice(last));
+  // The rows whose parent at the last level offers a choice, and the children they score.
+  double deciding = 0, children_scored = 0, forced = 0;
+  for (int64_t row = 0; row < predictions.labels.rows(); ++row) {
+    const int64_t parent = fixture.tree.NodeOfLabels(predictions.labels.row(row).data(), last);
+    ASSERT_GE(parent, 0);
+    const uint32_t children = fixture.tree.NumChildren(static_cast<uint32_t>(parent));
+    if (children == 1) {
+      ++forced;
+      EXPECT_EQ(predictions.labels(row, last), 0);
+    } else {
+      ++deciding;
+      children_scored += children;
+    }
+  }
+  ASSERT_GT(forced, 50) << "the fixture must have such parents";
+  ASSERT_GT(deciding, 0);
+  const double d = fixture.shape.descriptor_dim, c = options.channels;
+  const double e = options.embedding_dim, h = options.trunk_channels;
+  const double layers = options.conditioned_layers, out = options.node_output_dim;
+  const double per_descriptor = n * (d * h + h * c + c * c);
+  const double per_row = deciding * ((layers - 1) * c * c + c * out) + children_scored * out;
+  const double generator = 2 * (e * e + 2 * layers * e * c);
+  const double runs = (predictions.level_flops[last] - 2 * (per_descriptor + per_row)) / generator;
+  EXPECT_DOUBLE_EQ(runs, std::round(runs));
+  EXPECT_GE(runs, 1);
+  EXPECT_LE(runs, deciding);
+  // Their confidence is that of the levels above: the torch operators, which run every row,
+  // give the only child a probability of 1 too.
+  ExpectSamePredictions(predictions, NetworkInternals::PredictWithTorch(
+                                         network, descriptors, images, fixture.tree, nullptr));
+}
+
 TEST(NetworkCpuInferenceTest, ThreadCountDoesNotChangeResults) {
   const RandomMap fixture = MakeRandomMap(11);
   const DescriptorMatrix descriptors = RandomDescriptors(700, fixture.shape.descriptor_dim, 6);

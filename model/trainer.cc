@@ -1,7 +1,6 @@
 #include "model/trainer.h"
 
 #include <fmt/format.h>
-#include <malloc.h>
 
 #include <algorithm>
 #include <cmath>
@@ -21,6 +20,7 @@
 #include "model/training_checkpoint.h"
 #include "model/training_schedule.h"
 #include "util/check.h"
+#include "util/memory.h"
 #include "util/progress_bar.h"
 #include "util/random.h"
 #include "util/timer.h"
@@ -31,16 +31,6 @@ namespace {
 // Random stream key of the held-out split (util/random.h); model/training_batch.cc holds the
 // batches'.
 constexpr uint64_t kStreamHoldout = 0x686f6c64;  // "hold"
-
-// Every training step allocates and frees the same few-megabyte activations. glibc's defaults hand
-// such blocks back to the kernel on free (mmap'd chunks, heap trimming), so each step page-faulted
-// them in again: half of the CPU time went to the kernel, and training ran at less than half speed
-// (docs/decisions.md). Freed memory is kept for reuse instead, for the whole process.
-void KeepFreedMemoryForReuse() {
-  mallopt(M_MMAP_THRESHOLD, 32 << 20);  // glibc's largest: blocks below it come from the heap
-  mallopt(M_TRIM_THRESHOLD, 1 << 30);
-  mallopt(M_TOP_PAD, 64 << 20);
-}
 
 NetworkShape TrainedNetworkShape(const Scene& scene, const LabelTree& tree,
                                  const TrainerOptions& options,
