@@ -2,6 +2,7 @@
 // (model/network_module.h).
 #include <algorithm>
 #include <limits>
+#include <tuple>
 #include <vector>
 
 #include "model/network_module.h"
@@ -55,9 +56,9 @@ torch::Tensor CandidateScores(const torch::Tensor& projected, const torch::Tenso
   // Where the rows share most of their candidates (a small map, whose images each see a large
   // part of it), every row is scored against every distinct candidate by one matrix product:
   // gathering a row and a point row per candidate instead moved up to a gigabyte per step.
-  const auto [distinct, position, counts] =
+  torch::Tensor distinct, position;
+  std::tie(distinct, position, std::ignore) =
       torch::_unique2(ranks, /*sorted=*/false, /*return_inverse=*/true);
-  (void)counts;
   if (projected.size(0) * distinct.size(0) <= kDenseScoresPerCandidate * ranks.size(0)) {
     const torch::Tensor all_scores =
         torch::matmul(projected, GatherRows(point_rows, distinct, sparse_gradient).t());
