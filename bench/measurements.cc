@@ -42,21 +42,37 @@ json MeasureGemmPeaks() {
   };
   SetComputeThreads(0);
   const double torch_gflops = LibtorchMatrixProductGflops(size, 1.5);
-  // hscloc's kernels are single-threaded; Predict splits rows over the threads, and so does this.
+  // hscloc's kernels are single-threaded; Predict splits rows over the threads, and so does this,
+  // with the packed product the network runs (the weight packed once, as the network's are).
   std::vector<float> in(size * size, 0.5f), weight(size * size, 0.25f), bias(size, 0),
       out(size * size);
+  const dense_kernels::PackedMatrix packed = dense_kernels::PackMatrix(weight.data(), size, size);
   const int64_t block = 256;
   const double kernel_gflops = rate([&] {
     ParallelFor(size / block, 0, [&](size_t first, size_t last) {
       for (size_t i = first; i < last; ++i) {
-        dense_kernels::Linear(in.data() + i * block * size, block, size, weight.data(), bias.data(),
-                              size, false, out.data() + i * block * size);
+        dense_kernels::Linear(in.data() + i * block * size, block, packed, bias.data(), false,
+                              out.data() + i * block * size);
       }
     });
   });
+  // The arithmetic peak of the same threads: fused multiply-adds on registers alone.
+  const int64_t iterations = int64_t{1} << 27;
+  const int threads = ResolveNumThreads(0);
+  std::vector<float> sinks(threads, 0.0f);
+  Timer fma_timer;
+  ParallelFor(threads, 0, [&](size_t first, size_t last) {
+    for (size_t i = first; i < last; ++i) {
+      dense_kernels::FusedMultiplyAddPeakLoop(iterations, &sinks[i]);
+    }
+  });
+  const double fma_gflops = 2.0 * dense_kernels::PacketLanes() * dense_kernels::kPeakLoopChains *
+                            static_cast<double>(iterations) * threads / fma_timer.ElapsedSeconds() /
+                            1e9;
   return {{"threads", ResolveNumThreads(0)},
           {"libtorch_gflops", torch_gflops},
-          {"eigen_kernels_gflops", kernel_gflops},
+          {"kernels_gflops", kernel_gflops},
+          {"fma_peak_gflops", fma_gflops},
           {"peak_gflops", std::max(torch_gflops, kernel_gflops)},
           {"kernel_instruction_sets", dense_kernels::KernelInstructionSets()}};
 }

@@ -10,6 +10,7 @@
 #pragma once
 
 #include <cstdint>
+#include <vector>
 
 namespace hscloc::dense_kernels {
 
@@ -18,6 +19,24 @@ namespace hscloc::dense_kernels {
 // alias `in`.
 void Linear(const float* in, int64_t rows, int64_t in_features, const float* weight,
             const float* bias, int64_t out_features, bool elu, float* out);
+
+// A Linear weight [out_features x in_features] laid out for the matrix-product kernel: panels of
+// PanelWidth() output features, each stored input feature by input feature, the last panel padded
+// with zeros. The kernel then reads the weights in the order it multiplies them; a layer run over
+// many row blocks is packed once (model/packed_weight_cache.h), not once per block.
+struct PackedMatrix {
+  int64_t out_features = 0;
+  int64_t in_features = 0;
+  std::vector<float> panels;
+};
+int64_t PanelWidth();
+PackedMatrix PackMatrix(const float* weight, int64_t out_features, int64_t in_features);
+
+// Linear with a packed weight: out = in * weight^T + bias, then ELU where `elu`. Each output is
+// one chain of fused multiply-adds over the input features in order, then the bias: the same bits
+// wherever its row sits in `in`, and for any vector width.
+void Linear(const float* in, int64_t rows, const PackedMatrix& weight, const float* bias, bool elu,
+            float* out);
 
 // out[r, :] = ELU(gamma[modulation_rows[r], :] * source[source_rows[r], :] +
 //                 beta[modulation_rows[r], :]) for r < rows, all rows of `columns` floats;
@@ -51,6 +70,13 @@ void PooledMaxLogits(const float* projected, int64_t num_inputs, int64_t dim,
 // (children a parent does not have) become 0 without an exp each; the rest is summed in the same
 // order as over the whole row, so the result is the same to the bit.
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns);
+
+// kPeakLoopChains independent chains of `iterations` fused multiply-add packets each, on registers
+// only (`sink` keeps them from being optimized away): 2 x PacketLanes() x kPeakLoopChains x
+// iterations FLOPs over the time this takes is the core's arithmetic peak, which no kernel passes.
+constexpr int kPeakLoopChains = 12;
+void FusedMultiplyAddPeakLoop(int64_t iterations, float* sink);
+int64_t PacketLanes();
 
 // The SIMD instruction sets the kernels were compiled for, e.g. "AVX512, FMA, AVX2, ...".
 const char* KernelInstructionSets();

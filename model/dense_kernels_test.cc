@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <string>
 #include <vector>
 
 #include "util/random.h"
@@ -44,6 +45,66 @@ TEST(DenseKernelsTest, LinearMatchesAReferenceProductForAnyShape) {
         }
       }
     }
+  }
+}
+
+// Each output of the packed product is the chain fma(x_k, w_k, ...) over k in order, then the
+// bias: std::fma rounds once as the hardware instruction does, so where the kernels have FMA the
+// result is that chain to the bit, whatever the row's place in its tile or the panel's padding.
+TEST(DenseKernelsTest, PackedLinearIsTheOrderedFusedChainOfEveryOutput) {
+  Random random(3);
+  const bool fused =
+      std::string(dense_kernels::KernelInstructionSets()).find("FMA") != std::string::npos;
+  const int64_t panel = dense_kernels::PanelWidth();
+  for (int64_t m : {1, 5, 12, 13, 29}) {
+    for (int64_t k : {1, 7, 64}) {
+      for (int64_t n : {int64_t{1}, panel - 1, panel, panel + 3, 2 * panel + 5}) {
+        const std::vector<float> in = Normal(m * k, random);
+        const std::vector<float> weight = Normal(n * k, random);
+        const std::vector<float> bias = Normal(n, random);
+        const dense_kernels::PackedMatrix packed = dense_kernels::PackMatrix(weight.data(), n, k);
+        for (bool elu : {false, true}) {
+          std::vector<float> out(m * n, std::numeric_limits<float>::quiet_NaN());
+          dense_kernels::Linear(in.data(), m, packed, bias.data(), elu, out.data());
+          for (int64_t row = 0; row < m; ++row) {
+            for (int64_t column = 0; column < n; ++column) {
+              float chain = 0;
+              for (int64_t i = 0; i < k; ++i) {
+                chain = std::fma(in[row * k + i], weight[column * k + i], chain);
+              }
+              chain += bias[column];
+              const float got = out[row * n + column];
+              if (elu) {
+                EXPECT_NEAR(got, EluReference(chain), 1e-5f * (1 + std::abs(chain)));
+              } else if (fused) {
+                EXPECT_EQ(got, chain)
+                    << m << "x" << k << "x" << n << " at " << row << ", " << column;
+              } else {
+                EXPECT_NEAR(got, chain, 1e-4f * std::sqrt(float(k)));
+              }
+            }
+          }
+        }
+      }
+    }
+  }
+}
+
+// A row's outputs do not depend on the rows beside it: the product of one row alone is the same
+// bits as that row's place in a block of many.
+TEST(DenseKernelsTest, PackedLinearGivesARowTheSameBitsAloneAsInABlock) {
+  Random random(4);
+  const int64_t m = 31, k = 96, n = 70;
+  const std::vector<float> in = Normal(m * k, random);
+  const std::vector<float> weight = Normal(n * k, random);
+  const std::vector<float> bias = Normal(n, random);
+  const dense_kernels::PackedMatrix packed = dense_kernels::PackMatrix(weight.data(), n, k);
+  std::vector<float> block(m * n);
+  dense_kernels::Linear(in.data(), m, packed, bias.data(), true, block.data());
+  for (int64_t row = 0; row < m; ++row) {
+    std::vector<float> alone(n);
+    dense_kernels::Linear(in.data() + row * k, 1, packed, bias.data(), true, alone.data());
+    EXPECT_TRUE(std::equal(alone.begin(), alone.end(), block.begin() + row * n)) << row;
   }
 }
 

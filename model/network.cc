@@ -336,7 +336,7 @@ torch::Tensor LevelImpl::Logits(const torch::Tensor& features, const torch::Tens
   return logits.masked_fill(absent, -std::numeric_limits<float>::infinity());
 }
 
-LevelWeights LevelImpl::CpuWeights() const {
+LevelWeights LevelImpl::CpuWeights(PackedWeightCache& packed) const {
   if (!has_weights_) throw std::logic_error("CpuWeights of a level without a choice");
   const auto data = [](const torch::Tensor& tensor) -> const float* {
     if (!tensor.device().is_cpu() || tensor.scalar_type() != torch::kFloat32 ||
@@ -347,9 +347,9 @@ LevelWeights LevelImpl::CpuWeights() const {
   };
   LevelWeights weights;
   weights.input_scale = static_cast<float>(input_scale_);
-  weights.trunk1_weight = data(trunk1_->weight);
+  weights.trunk1_weight = packed.Get(trunk1_->weight);
   weights.trunk1_bias = data(trunk1_->bias);
-  weights.trunk2_weight = data(trunk2_->weight);
+  weights.trunk2_weight = packed.Get(trunk2_->weight);
   weights.trunk2_bias = data(trunk2_->bias);
   weights.image_embedding = data(image_embedding_->weight);
   for (const torch::nn::Embedding& table : label_embeddings_) {
@@ -359,25 +359,25 @@ LevelWeights LevelImpl::CpuWeights() const {
     weights.node_embedding = data(node_embedding_->weight);
     weights.node_embedding_first = node_embedding_first_;
   }
-  weights.generator_weight = data(generator_->weight);
+  weights.generator_weight = packed.Get(generator_->weight);
   weights.generator_bias = data(generator_->bias);
   for (size_t i = 0; i < conditioned_.size(); ++i) {
-    weights.gamma_weights.push_back(data(gamma_heads_[i]->weight));
+    weights.gamma_weights.push_back(packed.Get(gamma_heads_[i]->weight));
     weights.gamma_biases.push_back(data(gamma_heads_[i]->bias));
-    weights.beta_weights.push_back(data(beta_heads_[i]->weight));
+    weights.beta_weights.push_back(packed.Get(beta_heads_[i]->weight));
     weights.beta_biases.push_back(data(beta_heads_[i]->bias));
-    weights.conditioned_weights.push_back(data(conditioned_[i]->weight));
+    weights.conditioned_weights.push_back(packed.Get(conditioned_[i]->weight));
     weights.conditioned_biases.push_back(data(conditioned_[i]->bias));
   }
   if (node_output_dim_ > 0) {
     weights.node_output_dim = node_output_dim_;
-    weights.projection_weight = data(projection_->weight);
+    weights.projection_weight = packed.Get(projection_->weight);
     weights.projection_bias = data(projection_->bias);
     if (shortcut_scale_.defined()) weights.shortcut_scale = data(shortcut_scale_);
     if (!pooled_) weights.node_rows = data(node_rows_);
     weights.node_rows_first = node_rows_first_;
   } else {
-    weights.output_weight = data(output_->weight);
+    weights.output_weight = packed.Get(output_->weight);
     weights.output_bias = data(output_->bias);
   }
   return weights;
@@ -479,6 +479,7 @@ int64_t Network::NumParameters() const {
 void Network::SetDevice(ComputeDevice device) {
   impl_->module->to(TorchDevice(device));
   impl_->device = device;
+  impl_->packed_weights.Clear();
 }
 
 double Network::PredictFlops(int64_t num_descriptors, int64_t num_images,

@@ -152,7 +152,7 @@ struct DescriptorLayerCache {
   std::vector<std::vector<float>> levels;  // empty until that level was computed
   // A shared trunk's output [N, H -> C] and the trunk weights it came from (null: none yet).
   std::vector<float> shared_trunk;
-  const float* shared_trunk_weight = nullptr;
+  const void* shared_trunk_weight = nullptr;
 };
 
 // Predictions for K conditioning images and N descriptors; (k, n) is row k * N + n of `labels`.

@@ -127,7 +127,7 @@ class CpuForwardPass {
       const Timer level_timer;
       const int depth = level->level();
       if (tree_.LevelHasChoice(depth)) {
-        LevelWeights weights = level->CpuWeights();
+        LevelWeights weights = level->CpuWeights(NetworkInternals::PackedWeights(network));
         weights.point_rows = point_rows_;
         descriptor_features_ = DescriptorFeatures(weights, depth, level->NumConditionedLayers());
         RunLevel(weights, depth, level->NumConditionedLayers());
@@ -195,26 +195,24 @@ class CpuForwardPass {
       scratch.Reserve(end - begin, trunk_channels_, channels_, embedding_dim_, shape_.branching,
                       layers, node_output_dim_);
       RunTrunk(weights, begin, end, scratch, scratch.linear.data());
-      dense_kernels::Linear(scratch.linear.data(), end - begin, channels_,
-                            weights.conditioned_weights[0], weights.conditioned_biases[0],
-                            channels_, false, features + begin * channels_);
+      dense_kernels::Linear(scratch.linear.data(), end - begin, *weights.conditioned_weights[0],
+                            weights.conditioned_biases[0], false, features + begin * channels_);
     });
   }
 
   // The trunk of descriptors [begin, end) into out [end - begin, C].
   void RunTrunk(const LevelWeights& weights, int64_t begin, int64_t end, BlockScratch& scratch,
                 float* out) const {
-    const int64_t descriptor_dim = shape_.descriptor_dim;
-    dense_kernels::Linear(scaled_descriptors_.data() + begin * descriptor_dim, end - begin,
-                          descriptor_dim, weights.trunk1_weight, weights.trunk1_bias,
-                          trunk_channels_, true, scratch.hidden.data());
-    dense_kernels::Linear(scratch.hidden.data(), end - begin, trunk_channels_,
-                          weights.trunk2_weight, weights.trunk2_bias, channels_, true, out);
+    dense_kernels::Linear(scaled_descriptors_.data() + begin * shape_.descriptor_dim, end - begin,
+                          *weights.trunk1_weight, weights.trunk1_bias, true, scratch.hidden.data());
+    dense_kernels::Linear(scratch.hidden.data(), end - begin, *weights.trunk2_weight,
+                          weights.trunk2_bias, true, out);
   }
 
   // A shared trunk's output [N, C], computed at the first level that asks for it.
   const float* SharedTrunk(const LevelWeights& weights, int layers) {
-    if (cache_.shared_trunk_weight == weights.trunk1_weight) return cache_.shared_trunk.data();
+    if (cache_.shared_trunk_weight == weights.trunk1_weight.get())
+      return cache_.shared_trunk.data();
     const int64_t descriptor_dim = shape_.descriptor_dim;
     multiply_adds_ +=
         num_descriptors_ * (descriptor_dim * trunk_channels_ + trunk_channels_ * channels_);
@@ -225,16 +223,15 @@ class CpuForwardPass {
                       layers, node_output_dim_);
       RunTrunk(weights, begin, end, scratch, cache_.shared_trunk.data() + begin * channels_);
     });
-    cache_.shared_trunk_weight = weights.trunk1_weight;
+    cache_.shared_trunk_weight = weights.trunk1_weight.get();
     return cache_.shared_trunk.data();
   }
 
   void RunFirstConditionedLayer(const LevelWeights& weights, const float* trunk, float* features) {
     multiply_adds_ += num_descriptors_ * channels_ * channels_;
     ForEachRowBlock(num_descriptors_, [&](int64_t begin, int64_t end) {
-      dense_kernels::Linear(trunk + begin * channels_, end - begin, channels_,
-                            weights.conditioned_weights[0], weights.conditioned_biases[0],
-                            channels_, false, features + begin * channels_);
+      dense_kernels::Linear(trunk + begin * channels_, end - begin, *weights.conditioned_weights[0],
+                            weights.conditioned_biases[0], false, features + begin * channels_);
     });
   }
 
@@ -300,15 +297,13 @@ class CpuForwardPass {
     }
     multiply_adds_ += runs * (e * e + layers * 2 * e * channels_);
     dense_kernels::EluInPlace(scratch.embedding.data(), runs * e);
-    dense_kernels::Linear(scratch.embedding.data(), runs, e, weights.generator_weight,
-                          weights.generator_bias, e, true, scratch.generator.data());
+    dense_kernels::Linear(scratch.embedding.data(), runs, *weights.generator_weight,
+                          weights.generator_bias, true, scratch.generator.data());
     for (int layer = 0; layer < layers; ++layer) {
-      dense_kernels::Linear(scratch.generator.data(), runs, e, weights.gamma_weights[layer],
-                            weights.gamma_biases[layer], channels_, false,
-                            scratch.gammas[layer].data());
-      dense_kernels::Linear(scratch.generator.data(), runs, e, weights.beta_weights[layer],
-                            weights.beta_biases[layer], channels_, false,
-                            scratch.betas[layer].data());
+      dense_kernels::Linear(scratch.generator.data(), runs, *weights.gamma_weights[layer],
+                            weights.gamma_biases[layer], false, scratch.gammas[layer].data());
+      dense_kernels::Linear(scratch.generator.data(), runs, *weights.beta_weights[layer],
+                            weights.beta_biases[layer], false, scratch.betas[layer].data());
     }
   }
 
@@ -322,9 +317,9 @@ class CpuForwardPass {
                                scratch.run_of_row.data(), block_rows, channels_,
                                scratch.features.data());
     for (int layer = 1; layer < layers; ++layer) {
-      dense_kernels::Linear(scratch.features.data(), block_rows, channels_,
-                            weights.conditioned_weights[layer], weights.conditioned_biases[layer],
-                            channels_, false, scratch.linear.data());
+      dense_kernels::Linear(scratch.features.data(), block_rows,
+                            *weights.conditioned_weights[layer], weights.conditioned_biases[layer],
+                            false, scratch.linear.data());
       dense_kernels::ModulateElu(scratch.linear.data(), nullptr, scratch.gammas[layer].data(),
                                  scratch.betas[layer].data(), scratch.run_of_row.data(), block_rows,
                                  channels_, scratch.features.data());
@@ -339,16 +334,15 @@ class CpuForwardPass {
     const int64_t block_rows = end - begin;
     if (weights.node_output_dim == 0) {
       multiply_adds_ += block_rows * channels_ * branching;
-      dense_kernels::Linear(scratch.features.data(), block_rows, channels_, weights.output_weight,
-                            weights.output_bias, branching, false, scratch.logits.data());
+      dense_kernels::Linear(scratch.features.data(), block_rows, *weights.output_weight,
+                            weights.output_bias, false, scratch.logits.data());
       return;
     }
     // Each run shares its parent: its children's rows are contiguous in the node table.
     const int64_t row_width = node_output_dim_ + 1;
     multiply_adds_ += block_rows * channels_ * node_output_dim_;
-    dense_kernels::Linear(scratch.features.data(), block_rows, channels_, weights.projection_weight,
-                          weights.projection_bias, node_output_dim_, false,
-                          scratch.projected.data());
+    dense_kernels::Linear(scratch.features.data(), block_rows, *weights.projection_weight,
+                          weights.projection_bias, false, scratch.projected.data());
     if (weights.shortcut_scale != nullptr) AddDescriptorShortcut(weights, end - begin, scratch);
     if (weights.point_rows != nullptr) {
       PooledLogits(weights.point_rows, depth, begin, end, scratch);
@@ -445,8 +439,8 @@ class CpuForwardPass {
     const float* projected = scratch.projected.data() + (i - begin) * node_output_dim_;
     float* run_logits = scratch.logits.data() + (i - begin) * branching;
     scratch.probe_scores.resize(run_rows * lists);
-    dense_kernels::Linear(projected, run_rows, node_output_dim_, index_->CentroidWeights(),
-                          index_->CentroidBiases(), lists, false, scratch.probe_scores.data());
+    dense_kernels::Linear(projected, run_rows, index_->CentroidWeights(), index_->CentroidBiases(),
+                          false, scratch.probe_scores.data());
     multiply_adds_ += run_rows * lists * node_output_dim_;
     scratch.probes.clear();
     scratch.probe_order.resize(lists);

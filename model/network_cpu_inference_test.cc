@@ -276,6 +276,30 @@ TEST(NetworkCpuInferenceTest, DescriptorLayerCacheGivesTheSamePredictionsWithLes
   }
 }
 
+// The kernels read the weights packed once and kept; an in-place update (an optimizer step
+// between held-out evaluations) must reach the next Predict.
+TEST(NetworkCpuInferenceTest, WeightsUpdatedInPlaceReachTheNextPrediction) {
+  const RandomMap fixture = MakeRandomMap(11);
+  NetworkOptions options;
+  options.channels = 48;
+  options.embedding_dim = 24;
+  options.conditioned_layers = 2;
+  Network network(fixture.shape, options, 12);
+  const DescriptorMatrix descriptors = RandomDescriptors(200, fixture.shape.descriptor_dim, 13);
+  const std::vector<uint32_t> images = {3, 6};
+  const PointPredictions before = network.Predict(descriptors, images, fixture.tree);
+  {
+    torch::NoGradGuard no_grad;
+    for (torch::Tensor& parameter : NetworkInternals::Module(network)->parameters()) {
+      parameter.add_(torch::randn_like(parameter) * 0.5);
+    }
+  }
+  const PointPredictions after = network.Predict(descriptors, images, fixture.tree);
+  EXPECT_NE(before.labels, after.labels);
+  ExpectSamePredictions(after, NetworkInternals::PredictWithTorch(network, descriptors, images,
+                                                                  fixture.tree, nullptr));
+}
+
 TEST(NetworkCpuInferenceTest, EmptyQueriesGiveEmptyPredictions) {
   const RandomMap fixture = MakeRandomMap(11);
   const Network network(fixture.shape, NetworkOptions{32, 16, 1}, 8);

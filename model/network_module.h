@@ -7,7 +7,9 @@
 #include <memory>
 #include <vector>
 
+#include "model/dense_kernels.h"
 #include "model/network.h"
+#include "model/packed_weight_cache.h"
 #include "model/point_candidates.h"
 
 namespace hscloc {
@@ -18,30 +20,33 @@ struct LevelModulation {
   std::vector<torch::Tensor> betas;
 };
 
-// Raw views of one level's weights, for the CPU inference kernels (model/dense_kernels.h). Linear
-// weights are [out, in] row-major, as torch.nn.Linear stores them; valid while the module lives
-// and its parameters are not replaced.
+// Views of one level's weights, for the CPU inference kernels (model/dense_kernels.h): the Linear
+// weights packed for the matrix-product kernel (PackedMatrix), the rest raw. Valid while the module
+// lives and its parameters are not replaced.
 struct LevelWeights {
+  using Packed = std::shared_ptr<const dense_kernels::PackedMatrix>;
   float input_scale = 1;
-  const float* trunk1_weight = nullptr;
+  Packed trunk1_weight;
   const float* trunk1_bias = nullptr;
-  const float* trunk2_weight = nullptr;
+  Packed trunk2_weight;
   const float* trunk2_bias = nullptr;
   const float* image_embedding = nullptr;      // [num_images + 1, E]
   std::vector<const float*> label_embeddings;  // one [branching, E] table per coarser level
   // Node conditioning: [nodes at the parents' depth, E], row = node id - node_embedding_first.
   const float* node_embedding = nullptr;
   int64_t node_embedding_first = 0;
-  const float* generator_weight = nullptr;
+  Packed generator_weight;
   const float* generator_bias = nullptr;
-  std::vector<const float*> gamma_weights, gamma_biases, beta_weights, beta_biases;
-  std::vector<const float*> conditioned_weights, conditioned_biases;
-  const float* output_weight = nullptr;  // the shared output (node_output_dim == 0)
+  std::vector<Packed> gamma_weights, beta_weights;
+  std::vector<const float*> gamma_biases, beta_biases;
+  std::vector<Packed> conditioned_weights;
+  std::vector<const float*> conditioned_biases;
+  Packed output_weight;  // the shared output (node_output_dim == 0)
   const float* output_bias = nullptr;
   // Node output rows: projection [r, C] and [r]; rows [nodes at the children's depth, r + 1]
   // (weights, then the bias), row = node id - node_rows_first.
   int64_t node_output_dim = 0;
-  const float* projection_weight = nullptr;
+  Packed projection_weight;
   const float* projection_bias = nullptr;
   const float* node_rows = nullptr;
   int64_t node_rows_first = 0;
@@ -75,8 +80,9 @@ class LevelImpl : public torch::nn::Module {
   // no such child); node output rows read them and give -inf where there is no child; the shared
   // output ignores them (the paper: every label has a logit).
   torch::Tensor Logits(const torch::Tensor& features, const torch::Tensor& child_nodes);
-  // Throws std::logic_error unless every parameter is a contiguous fp32 CPU tensor.
-  LevelWeights CpuWeights() const;
+  // Throws std::logic_error unless every parameter is a contiguous fp32 CPU tensor. The packed
+  // matrices come from `packed` (the network's).
+  LevelWeights CpuWeights(PackedWeightCache& packed) const;
 
   // The last conditioned layer's features [R, C] of R (descriptor, image, prefix) rows.
   torch::Tensor Features(const torch::Tensor& descriptors, const torch::Tensor& image_indices,
@@ -198,6 +204,8 @@ struct Network::Impl {
   NetworkOptions options;
   HscNet module{nullptr};
   ComputeDevice device = ComputeDevice::kCpu;
+  // The CPU kernels' layout of the module's matrices (mutable: Predict is const).
+  mutable PackedWeightCache packed_weights;
 };
 
 // How an archive stores the weights: as trained (checkpoints), or with every matrix as 8-bit rows
@@ -219,6 +227,9 @@ torch::Tensor DequantizeRows(const Int8Rows& rows);
 struct NetworkInternals {
   static HscNet& Module(Network& network) { return network.impl_->module; }
   static const HscNet& Module(const Network& network) { return network.impl_->module; }
+  static PackedWeightCache& PackedWeights(const Network& network) {
+    return network.impl_->packed_weights;
+  }
   // Saves into / restores from an archive nested in a larger one (checkpoints keep every weight
   // as trained).
   static void SaveTo(const Network& network, torch::serialize::OutputArchive& archive,

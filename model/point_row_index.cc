@@ -123,13 +123,14 @@ PointRowIndex PointRowIndex::Build(const Network& network, const LabelTree& tree
   std::vector<float> centroids = LearnCentroids(rows, count, width, lists, options);
   const std::vector<uint32_t> assignment = NearestCentroids(rows, count, width, centroids);
   UpdateCentroids(rows, width, assignment, centroids);
-  index.centroid_weights_.resize(lists * (width - 1));
+  std::vector<float> centroid_weights(lists * (width - 1));
   index.centroid_biases_.resize(lists);
   for (int64_t list = 0; list < lists; ++list) {
     std::copy_n(centroids.data() + list * width, width - 1,
-                index.centroid_weights_.data() + list * (width - 1));
+                centroid_weights.data() + list * (width - 1));
     index.centroid_biases_[list] = centroids[list * width + width - 1];
   }
+  index.centroid_weights_ = dense_kernels::PackMatrix(centroid_weights.data(), lists, width - 1);
 
   // A stable counting sort by list keeps each list's ranks ascending, hence its first-level
   // labels in runs.

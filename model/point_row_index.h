@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "map/label_tree.h"
+#include "model/dense_kernels.h"
 
 namespace hscloc {
 
@@ -63,15 +64,15 @@ class PointRowIndex {
     int64_t count = 0;
   };
   Segments SegmentsOf(int64_t list) const;
-  // The lists' mean rows, as weights [lists, RowWidth() - 1] and biases [lists]: a list's probe
-  // score is its mean row's score.
-  const float* CentroidWeights() const { return centroid_weights_.data(); }
+  // The lists' mean rows, as weights [lists, RowWidth() - 1] (packed for the matrix-product
+  // kernel) and biases [lists]: a list's probe score is its mean row's score.
+  const dense_kernels::PackedMatrix& CentroidWeights() const { return centroid_weights_; }
   const float* CentroidBiases() const { return centroid_biases_.data(); }
 
  private:
   int64_t row_width_ = 0;
   int probes_ = 0;
-  std::vector<float> centroid_weights_;
+  dense_kernels::PackedMatrix centroid_weights_;
   std::vector<float> centroid_biases_;
   std::vector<uint64_t> offsets_;  // per list, into the points
   std::vector<float> rows_;
