@@ -66,9 +66,10 @@ constexpr int64_t kPanelWidth = 2 * kLanes;
 constexpr int kTileRows = kLanes >= 16 ? 12 : 6;
 
 // Rows [0, rows) of one tile (rows <= kTileRows, a compile-time count so the accumulators stay
-// in registers) against one panel, into out[rows x columns] with row stride out_stride.
+// in registers) against one panel and its bias (kPanelWidth floats, aligned, zero past `columns`),
+// into out[rows x columns] with row stride out_stride.
 template <int rows>
-void ProductTile(const float* in, int64_t in_features, const float* panel, const float* bias,
+void ProductTile(const float* in, int64_t in_features, const float* panel, const float* panel_bias,
                  int64_t columns, bool elu, float* out, int64_t out_stride) {
   Packet low[rows];
   Packet high[rows];
@@ -82,10 +83,8 @@ void ProductTile(const float* in, int64_t in_features, const float* panel, const
       high[r] = ei::pmadd(x, weight_high, high[r]);
     }
   }
-  alignas(64) float padded_bias[kPanelWidth] = {};
-  std::copy(bias, bias + columns, padded_bias);
-  const Packet bias_low = ei::pload<Packet>(padded_bias);
-  const Packet bias_high = ei::pload<Packet>(padded_bias + kLanes);
+  const Packet bias_low = ei::pload<Packet>(panel_bias);
+  const Packet bias_high = ei::pload<Packet>(panel_bias + kLanes);
   alignas(64) float tail[kPanelWidth];
   for (int r = 0; r < rows; ++r) {
     Packet first = ei::padd(low[r], bias_low);
@@ -144,11 +143,13 @@ void Linear(const float* in, int64_t rows, const PackedMatrix& weight, const flo
   for (int64_t first_column = 0; first_column < out_features; first_column += kPanelWidth) {
     const float* panel = weight.panels.data() + first_column * in_features;
     const int64_t columns = std::min(kPanelWidth, out_features - first_column);
+    alignas(64) float panel_bias[kPanelWidth] = {};
+    std::copy(bias + first_column, bias + first_column + columns, panel_bias);
     for (int64_t first_row = 0; first_row < rows; first_row += kTileRows) {
       const int64_t tile_rows = std::min<int64_t>(kTileRows, rows - first_row);
-      kProductTiles[tile_rows - 1](in + first_row * in_features, in_features, panel,
-                                   bias + first_column, columns, elu,
-                                   out + first_row * out_features + first_column, out_features);
+      kProductTiles[tile_rows - 1](in + first_row * in_features, in_features, panel, panel_bias,
+                                   columns, elu, out + first_row * out_features + first_column,
+                                   out_features);
     }
   }
 }
