@@ -19,7 +19,6 @@ namespace E = HsclocKernelEigen;
 namespace ei = HsclocKernelEigen::internal;
 using RowMajorMatrix = E::Matrix<float, E::Dynamic, E::Dynamic, E::RowMajor>;
 using ConstMatrixMap = E::Map<const RowMajorMatrix>;
-using MatrixMap = E::Map<RowMajorMatrix>;
 using Packet = ei::packet_traits<float>::type;
 constexpr int64_t kLanes = ei::unpacket_traits<Packet>::size;
 
@@ -46,16 +45,6 @@ Packet Elu(const Packet& x) {
 }
 
 }  // namespace
-
-void Linear(const float* in, int64_t rows, int64_t in_features, const float* weight,
-            const float* bias, int64_t out_features, bool elu, float* out) {
-  const ConstMatrixMap input(in, rows, in_features);
-  const ConstMatrixMap weights(weight, out_features, in_features);
-  MatrixMap output(out, rows, out_features);
-  output.noalias() = input * weights.transpose();
-  output.rowwise() += E::Map<const E::RowVectorXf>(bias, out_features);
-  if (elu) EluInPlace(out, rows * out_features);
-}
 
 namespace {
 

@@ -14,13 +14,8 @@
 
 namespace hscloc::dense_kernels {
 
-// out[rows x out_features] = in[rows x in_features] * weight[out_features x in_features]^T +
-// bias[out_features] (weight as torch.nn.Linear stores it), then ELU where `elu`. `out` must not
-// alias `in`.
-void Linear(const float* in, int64_t rows, int64_t in_features, const float* weight,
-            const float* bias, int64_t out_features, bool elu, float* out);
-
-// A Linear weight [out_features x in_features] laid out for the matrix-product kernel: panels of
+// A Linear weight [out_features x in_features] (as torch.nn.Linear stores it) laid out for the
+// matrix-product kernel: panels of
 // PanelWidth() output features, each stored input feature by input feature, the last panel padded
 // with zeros. The kernel then reads the weights in the order it multiplies them; a layer run over
 // many row blocks is packed once (model/packed_weight_cache.h), not once per block.
@@ -32,9 +27,10 @@ struct PackedMatrix {
 int64_t PanelWidth();
 PackedMatrix PackMatrix(const float* weight, int64_t out_features, int64_t in_features);
 
-// Linear with a packed weight: out = in * weight^T + bias, then ELU where `elu`. Each output is
-// one chain of fused multiply-adds over the input features in order, then the bias: the same bits
-// wherever its row sits in `in`, and for any vector width.
+// out[rows x out_features] = in[rows x in_features] * weight^T + bias[out_features], then ELU
+// where `elu`; `out` must not alias `in`. Each output is one chain of fused multiply-adds over the
+// input features in order, then the bias: the same bits wherever its row sits in `in`, and for
+// any vector width.
 void Linear(const float* in, int64_t rows, const PackedMatrix& weight, const float* bias, bool elu,
             float* out);
 

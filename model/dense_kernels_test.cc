@@ -34,7 +34,8 @@ TEST(DenseKernelsTest, LinearMatchesAReferenceProductForAnyShape) {
           const std::vector<float> weight = Normal(n * k, random);
           const std::vector<float> bias = Normal(n, random);
           std::vector<float> out(m * n);
-          dense_kernels::Linear(in.data(), m, k, weight.data(), bias.data(), n, elu, out.data());
+          dense_kernels::Linear(in.data(), m, dense_kernels::PackMatrix(weight.data(), n, k),
+                                bias.data(), elu, out.data());
           RowMajor expected = Eigen::Map<const RowMajor>(in.data(), m, k) *
                               Eigen::Map<const RowMajor>(weight.data(), n, k).transpose();
           expected.rowwise() += Eigen::Map<const Eigen::RowVectorXf>(bias.data(), n);

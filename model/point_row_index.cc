@@ -29,6 +29,8 @@ std::vector<uint32_t> NearestCentroids(const float* rows, int64_t count, int64_t
       norm += centroids[list * width + d] * centroids[list * width + d];
     half_norms[list] = -0.5f * norm;
   }
+  const dense_kernels::PackedMatrix packed =
+      dense_kernels::PackMatrix(centroids.data(), lists, width);
   std::vector<uint32_t> nearest(count);
   const int64_t blocks = (count + kAssignBlock - 1) / kAssignBlock;
   ParallelFor(static_cast<size_t>(blocks), ComputeThreads(), [&](size_t first, size_t last) {
@@ -36,8 +38,8 @@ std::vector<uint32_t> NearestCentroids(const float* rows, int64_t count, int64_t
     for (size_t block = first; block < last; ++block) {
       const int64_t begin = static_cast<int64_t>(block) * kAssignBlock;
       const int64_t rows_in_block = std::min(count, begin + kAssignBlock) - begin;
-      dense_kernels::Linear(rows + begin * width, rows_in_block, width, centroids.data(),
-                            half_norms.data(), lists, false, scores.data());
+      dense_kernels::Linear(rows + begin * width, rows_in_block, packed, half_norms.data(), false,
+                            scores.data());
       for (int64_t i = 0; i < rows_in_block; ++i) {
         const float* row_scores = scores.data() + i * lists;
         nearest[begin + i] =
