@@ -51,10 +51,9 @@ struct BlockScratch {
   std::vector<std::vector<float>> gammas, betas;
   std::vector<int32_t> run_of_row;
   std::vector<int64_t> descriptor_of_row;
-  // The point row index: probe scores, (list, row) probes, and one list's rows and logits.
-  std::vector<float> probe_scores, list_queries, list_logits;
+  // The point row index: a block's probe scores, and the lists in order of their scores.
+  std::vector<float> probe_scores;
   std::vector<uint32_t> probe_order;
-  std::vector<std::pair<uint32_t, uint32_t>> probes;
 
   void Reserve(int64_t rows, int64_t trunk_channels, int64_t channels, int64_t embedding_dim,
                int64_t branching, int layers, int64_t projected_dim) {
@@ -168,8 +167,12 @@ class CpuForwardPass {
     return features.data();
   }
 
+  // Rows are decided a block at a time, except the run scored through the point row index: its
+  // projections are gathered from every block and pooled all at once, so that each list of the
+  // index streams from memory once for all the rows that probe it, not once per block.
   void RunLevel(const LevelWeights& weights, int depth, int layers) {
     SortDecidingRowsByConditioning(depth, weights.node_output_dim > 0);
+    FindIndexedRun(weights);
     ForEachRowBlock(static_cast<int64_t>(keyed_rows_.size()), [&](int64_t begin, int64_t end) {
       thread_local BlockScratch scratch;
       scratch.Reserve(end - begin, trunk_channels_, channels_, embedding_dim_, shape_.branching,
@@ -177,8 +180,40 @@ class CpuForwardPass {
       GenerateModulation(weights, layers, begin, end, scratch);
       ModulateFeatures(weights, layers, begin, end, scratch);
       ComputeLogits(weights, depth, begin, end, scratch);
-      ChooseLabels(depth, begin, end, scratch);
+      float* logits = scratch.logits.data();
+      ChooseLabels(depth, begin, std::min(end, indexed_begin_), logits);
+      const int64_t after = std::max(begin, indexed_end_);
+      ChooseLabels(depth, after, end, logits + (after - begin) * shape_.branching);
     });
+    if (indexed_begin_ == indexed_end_) return;
+    IndexedPooledLogits();
+    ForEachRowBlock(indexed_end_ - indexed_begin_, [&](int64_t begin, int64_t end) {
+      ChooseLabels(depth, indexed_begin_ + begin, indexed_begin_ + end,
+                   indexed_logits_.data() + begin * shape_.branching);
+    });
+  }
+
+  // The rows without an image at the root, which pool over every point of the map: one run of
+  // keyed_rows_ (they share their key), [indexed_begin_, indexed_end_), scored through the index
+  // where there is one; else an empty range past every row.
+  void FindIndexedRun(const LevelWeights& weights) {
+    const auto rows = static_cast<int64_t>(keyed_rows_.size());
+    indexed_begin_ = indexed_end_ = rows;
+    if (index_ == nullptr || weights.point_rows == nullptr) return;
+    for (int64_t i = 0; i < rows; ++i) {
+      if (!IndexedRow(keyed_rows_[i].second)) continue;
+      indexed_begin_ = i;
+      indexed_end_ = i + 1;
+      while (indexed_end_ < rows && keyed_rows_[indexed_end_].first == keyed_rows_[i].first)
+        ++indexed_end_;
+      break;
+    }
+    indexed_projected_.resize((indexed_end_ - indexed_begin_) * node_output_dim_);
+  }
+
+  bool IndexedRow(int64_t row) const {
+    return index_ != nullptr && parent_node_[row] == 0 &&
+           image_indices_[row / num_descriptors_] == static_cast<uint32_t>(shape_.num_images);
   }
 
   // The trunk and the first conditioned layer's W h + b depend on the descriptor only.
@@ -397,9 +432,11 @@ class CpuForwardPass {
       while (run_end < end && keyed_rows_[run_end].first == keyed_rows_[i].first) ++run_end;
       const int64_t row = keyed_rows_[i].second;
       const int64_t parent = parent_node_[row];
-      if (index_ != nullptr && parent == 0 &&
-          image_indices_[row / num_descriptors_] == static_cast<uint32_t>(shape_.num_images)) {
-        IndexedPooledLogits(i, run_end, begin, scratch);
+      if (i >= indexed_begin_ && i < indexed_end_) {
+        // Pooled after every block (RunLevel); its projections wait in indexed_projected_.
+        std::copy_n(scratch.projected.data() + (i - begin) * node_output_dim_,
+                    (run_end - i) * node_output_dim_,
+                    indexed_projected_.data() + (i - indexed_begin_) * node_output_dim_);
         i = run_end;
         continue;
       }
@@ -429,57 +466,94 @@ class CpuForwardPass {
     }
   }
 
-  // Rows [i, run_end) pool over every point of the map (no image, the root): each row scores the
-  // points of the index's lists that its projection probes, a list's probing rows at a time.
-  void IndexedPooledLogits(int64_t i, int64_t run_end, int64_t begin, BlockScratch& scratch) {
+  // The indexed run's logits, into indexed_logits_: each row scores the points of the index's
+  // lists that its projection probes, a list's probing rows at a time. The lists are split among
+  // the compute threads, each keeping its own best scores, merged by their maximum: the result
+  // does not depend on the number of threads.
+  void IndexedPooledLogits() {
+    const int64_t rows = indexed_end_ - indexed_begin_;
     const int64_t branching = shape_.branching;
-    const int64_t run_rows = run_end - i;
-    const int64_t lists = index_->NumLists();
-    const int64_t probes = index_->probes();
-    const float* projected = scratch.projected.data() + (i - begin) * node_output_dim_;
-    float* run_logits = scratch.logits.data() + (i - begin) * branching;
-    scratch.probe_scores.resize(run_rows * lists);
-    dense_kernels::Linear(projected, run_rows, index_->CentroidWeights(), index_->CentroidBiases(),
-                          false, scratch.probe_scores.data());
-    multiply_adds_ += run_rows * lists * node_output_dim_;
-    scratch.probes.clear();
-    scratch.probe_order.resize(lists);
-    for (int64_t r = 0; r < run_rows; ++r) {
-      const float* scores = scratch.probe_scores.data() + r * lists;
-      std::iota(scratch.probe_order.begin(), scratch.probe_order.end(), 0u);
-      std::nth_element(scratch.probe_order.begin(), scratch.probe_order.begin() + probes - 1,
-                       scratch.probe_order.end(),
-                       [&](uint32_t a, uint32_t b) { return scores[a] > scores[b]; });
-      for (int64_t p = 0; p < probes; ++p) {
-        scratch.probes.emplace_back(scratch.probe_order[p], static_cast<uint32_t>(r));
+    const std::vector<std::pair<uint32_t, uint32_t>> probes = ProbeLists(rows);
+    const int parts = static_cast<int>(
+        std::min<int64_t>(ResolveNumThreads(ComputeThreads()), index_->NumLists()));
+    std::vector<std::vector<float>> part_logits(parts);
+    ParallelFor(static_cast<size_t>(parts), parts, [&](size_t first, size_t last) {
+      for (size_t part = first; part < last; ++part) {
+        // Lists [NumLists * part / parts, NumLists * (part + 1) / parts), by their probes.
+        const auto list_bound = [&](size_t k) {
+          const auto list = static_cast<uint32_t>(index_->NumLists() * k / parts);
+          return std::lower_bound(probes.begin(), probes.end(), std::make_pair(list, 0u));
+        };
+        part_logits[part].assign(rows * branching, -std::numeric_limits<float>::infinity());
+        ScanProbedLists(list_bound(part), list_bound(part + 1), part_logits[part].data());
+      }
+    });
+    indexed_logits_ = std::move(part_logits[0]);
+    for (int part = 1; part < parts; ++part) {
+      for (int64_t k = 0; k < rows * branching; ++k) {
+        indexed_logits_[k] = std::max(indexed_logits_[k], part_logits[part][k]);
       }
     }
-    std::sort(scratch.probes.begin(), scratch.probes.end());
-    for (size_t p = 0; p < scratch.probes.size();) {
-      const uint32_t list = scratch.probes[p].first;
-      size_t last = p;
-      while (last < scratch.probes.size() && scratch.probes[last].first == list) ++last;
-      const auto count = static_cast<int64_t>(last - p);
-      scratch.list_queries.resize(count * node_output_dim_);
-      scratch.list_logits.resize(count * branching);
+  }
+
+  // (list, row) for every list that each indexed row probes, sorted.
+  std::vector<std::pair<uint32_t, uint32_t>> ProbeLists(int64_t rows) {
+    const int64_t lists = index_->NumLists();
+    const int64_t probes = index_->probes();
+    multiply_adds_ += rows * lists * node_output_dim_;
+    std::vector<std::pair<uint32_t, uint32_t>> probed(rows * probes);
+    ForEachRowBlock(rows, [&](int64_t begin, int64_t end) {
+      thread_local BlockScratch scratch;
+      scratch.probe_scores.resize((end - begin) * lists);
+      dense_kernels::Linear(indexed_projected_.data() + begin * node_output_dim_, end - begin,
+                            index_->CentroidWeights(), index_->CentroidBiases(), false,
+                            scratch.probe_scores.data());
+      scratch.probe_order.resize(lists);
+      for (int64_t r = begin; r < end; ++r) {
+        const float* scores = scratch.probe_scores.data() + (r - begin) * lists;
+        std::iota(scratch.probe_order.begin(), scratch.probe_order.end(), 0u);
+        std::nth_element(scratch.probe_order.begin(), scratch.probe_order.begin() + probes - 1,
+                         scratch.probe_order.end(),
+                         [&](uint32_t a, uint32_t b) { return scores[a] > scores[b]; });
+        for (int64_t p = 0; p < probes; ++p) {
+          probed[r * probes + p] = {scratch.probe_order[p], static_cast<uint32_t>(r)};
+        }
+      }
+    });
+    std::sort(probed.begin(), probed.end());
+    return probed;
+  }
+
+  // The probes [first, last) (whole lists), each list's probing rows gathered side by side and
+  // pooled over its points into logits [rows of the run, branching].
+  using ProbeIterator = std::vector<std::pair<uint32_t, uint32_t>>::const_iterator;
+  void ScanProbedLists(ProbeIterator first, ProbeIterator last, float* logits) {
+    const int64_t branching = shape_.branching;
+    thread_local std::vector<float> list_queries, list_logits;
+    for (ProbeIterator p = first; p != last;) {
+      const uint32_t list = p->first;
+      ProbeIterator list_end = p;
+      while (list_end != last && list_end->first == list) ++list_end;
+      const auto count = static_cast<int64_t>(list_end - p);
+      list_queries.resize(count * node_output_dim_);
+      list_logits.resize(count * branching);
       for (int64_t k = 0; k < count; ++k) {
-        const uint32_t r = scratch.probes[p + k].second;
-        std::copy_n(projected + r * node_output_dim_, node_output_dim_,
-                    scratch.list_queries.data() + k * node_output_dim_);
-        std::copy_n(run_logits + r * branching, branching,
-                    scratch.list_logits.data() + k * branching);
+        const uint32_t r = p[k].second;
+        std::copy_n(indexed_projected_.data() + r * node_output_dim_, node_output_dim_,
+                    list_queries.data() + k * node_output_dim_);
+        std::copy_n(logits + r * branching, branching, list_logits.data() + k * branching);
       }
       const PointRowIndex::Segments segments = index_->SegmentsOf(list);
       multiply_adds_ +=
           count * (index_->ListEnd(list) - index_->ListBegin(list)) * node_output_dim_;
-      dense_kernels::PooledMaxLogits(scratch.list_queries.data(), count, node_output_dim_,
+      dense_kernels::PooledMaxLogits(list_queries.data(), count, node_output_dim_,
                                      index_->Rows(list), segments.starts, segments.labels,
-                                     segments.count, branching, scratch.list_logits.data());
+                                     segments.count, branching, list_logits.data());
       for (int64_t k = 0; k < count; ++k) {
-        std::copy_n(scratch.list_logits.data() + k * branching, branching,
-                    run_logits + scratch.probes[p + k].second * branching);
+        std::copy_n(list_logits.data() + k * branching, branching,
+                    logits + p[k].second * branching);
       }
-      p = last;
+      p = list_end;
     }
   }
 
@@ -510,12 +584,14 @@ class CpuForwardPass {
     scratch.segment_starts.push_back(static_cast<uint32_t>(count));
   }
 
-  void ChooseLabels(int depth, int64_t begin, int64_t end, BlockScratch& scratch) {
+  // Rows [begin, end) of keyed_rows_ (none where end <= begin), their logits from `logits` on.
+  void ChooseLabels(int depth, int64_t begin, int64_t end, float* logits) {
+    if (end <= begin) return;
     const int64_t branching = shape_.branching;
-    dense_kernels::SoftmaxRowsInPlace(scratch.logits.data(), end - begin, branching);
+    dense_kernels::SoftmaxRowsInPlace(logits, end - begin, branching);
     for (int64_t i = begin; i < end; ++i) {
       const int64_t row = keyed_rows_[i].second;
-      const float* probabilities = scratch.logits.data() + (i - begin) * branching;
+      const float* probabilities = logits + (i - begin) * branching;
       const int slot = masks_ ? masks_->SlotOfK(static_cast<size_t>(row / num_descriptors_)) : -1;
       const int64_t parent = parent_node_[row];
       const int64_t best = ChooseLabel(probabilities, branching, masks_.get(), slot, parent, tree_);
@@ -542,8 +618,13 @@ class CpuForwardPass {
   // Pooled point rows: the candidates of the call's images, and the network's table.
   std::unique_ptr<PointCandidates> candidates_;
   const float* point_rows_ = nullptr;
-  // Where given, rows without an image score the root's children through it.
+  // Where given, rows without an image score the root's children through it: the level's such
+  // rows, their projections [rows, node_output_dim] and their logits [rows, branching].
   const PointRowIndex* index_ = nullptr;
+  int64_t indexed_begin_ = 0;
+  int64_t indexed_end_ = 0;
+  std::vector<float> indexed_projected_;
+  std::vector<float> indexed_logits_;
   // The tree node of every row's label prefix (-1 once a path leaves the tree).
   std::vector<int64_t> parent_node_;
   // Every level's first conditioned layer's W h + b of every descriptor, [N, C], and the current

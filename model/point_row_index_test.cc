@@ -117,6 +117,39 @@ TEST(PointRowIndexTest, ImageRowsIgnoreTheIndex) {
   }
 }
 
+// The rows without an image are pooled all at once, their lists split among the threads: the
+// predictions do not depend on the thread count, and beside image rows in the same call both
+// kinds get what they get alone.
+TEST(PointRowIndexTest, IndexedRowsDoNotDependOnThreadsOrTheOtherRows) {
+  const RandomMap map = MakeRandomMap(6);
+  const Network network = WithRandomPointRows(Network(map.shape, PooledOptions(), 9), 10);
+  PointRowIndexOptions options;
+  options.lists = 24;
+  options.probes = 4;
+  const PointRowIndex index = PointRowIndex::Build(network, map.tree, options);
+  // More rows than one block of the CPU pass holds.
+  const DescriptorMatrix descriptors = RandomDescriptors(300, map.shape.descriptor_dim, 11);
+  const std::vector<uint32_t> no_image = {network.NoImageIndex()};
+  SetComputeThreads(1);
+  const PointPredictions one_thread =
+      network.Predict(descriptors, no_image, map.tree, nullptr, nullptr, &index);
+  SetComputeThreads(3);
+  const PointPredictions three_threads =
+      network.Predict(descriptors, no_image, map.tree, nullptr, nullptr, &index);
+  const PointPredictions image_alone =
+      network.Predict(descriptors, {2}, map.tree, nullptr, nullptr, &index);
+  const PointPredictions mixed =
+      network.Predict(descriptors, {2, network.NoImageIndex()}, map.tree, nullptr, nullptr, &index);
+  SetComputeThreads(0);
+  EXPECT_EQ(three_threads.labels, one_thread.labels);
+  EXPECT_EQ(three_threads.confidences, one_thread.confidences);
+  const int64_t n = descriptors.rows();
+  EXPECT_EQ(mixed.labels.topRows(n), image_alone.labels);
+  EXPECT_EQ(mixed.labels.bottomRows(n), one_thread.labels);
+  EXPECT_EQ(mixed.confidences.row(0), image_alone.confidences.row(0));
+  EXPECT_EQ(mixed.confidences.row(1), one_thread.confidences.row(0));
+}
+
 TEST(PointRowIndexTest, RefusesWhatDoesNotFit) {
   const RandomMap map = MakeRandomMap(6);
   NetworkOptions node_rows = PooledOptions();
