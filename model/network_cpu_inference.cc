@@ -8,7 +8,6 @@
 #include <functional>
 #include <limits>
 #include <memory>
-#include <numeric>
 #include <utility>
 #include <vector>
 
@@ -51,9 +50,6 @@ struct BlockScratch {
   std::vector<std::vector<float>> gammas, betas;
   std::vector<int32_t> run_of_row;
   std::vector<int64_t> descriptor_of_row;
-  // The point row index: a block's probe scores, and the lists in order of their scores.
-  std::vector<float> probe_scores;
-  std::vector<uint32_t> probe_order;
 
   void Reserve(int64_t rows, int64_t trunk_channels, int64_t channels, int64_t embedding_dim,
                int64_t branching, int layers, int64_t projected_dim) {
@@ -186,7 +182,10 @@ class CpuForwardPass {
       ChooseLabels(depth, after, end, logits + (after - begin) * shape_.branching);
     });
     if (indexed_begin_ == indexed_end_) return;
-    IndexedPooledLogits();
+    int64_t multiply_adds = 0;
+    indexed_logits_ = index_->PooledLogits(indexed_projected_.data(), indexed_end_ - indexed_begin_,
+                                           shape_.branching, &multiply_adds);
+    multiply_adds_ += multiply_adds;
     ForEachRowBlock(indexed_end_ - indexed_begin_, [&](int64_t begin, int64_t end) {
       ChooseLabels(depth, indexed_begin_ + begin, indexed_begin_ + end,
                    indexed_logits_.data() + begin * shape_.branching);
@@ -463,97 +462,6 @@ class CpuForwardPass {
       // A row without candidates (its path left the tree) keeps finite logits.
       if (span.size == 0) std::fill_n(run_logits, run_rows * branching, 0.0f);
       i = run_end;
-    }
-  }
-
-  // The indexed run's logits, into indexed_logits_: each row scores the points of the index's
-  // lists that its projection probes, a list's probing rows at a time. The lists are split among
-  // the compute threads, each keeping its own best scores, merged by their maximum: the result
-  // does not depend on the number of threads.
-  void IndexedPooledLogits() {
-    const int64_t rows = indexed_end_ - indexed_begin_;
-    const int64_t branching = shape_.branching;
-    const std::vector<std::pair<uint32_t, uint32_t>> probes = ProbeLists(rows);
-    const int parts = static_cast<int>(
-        std::min<int64_t>(ResolveNumThreads(ComputeThreads()), index_->NumLists()));
-    std::vector<std::vector<float>> part_logits(parts);
-    ParallelFor(static_cast<size_t>(parts), parts, [&](size_t first, size_t last) {
-      for (size_t part = first; part < last; ++part) {
-        // Lists [NumLists * part / parts, NumLists * (part + 1) / parts), by their probes.
-        const auto list_bound = [&](size_t k) {
-          const auto list = static_cast<uint32_t>(index_->NumLists() * k / parts);
-          return std::lower_bound(probes.begin(), probes.end(), std::make_pair(list, 0u));
-        };
-        part_logits[part].assign(rows * branching, -std::numeric_limits<float>::infinity());
-        ScanProbedLists(list_bound(part), list_bound(part + 1), part_logits[part].data());
-      }
-    });
-    indexed_logits_ = std::move(part_logits[0]);
-    for (int part = 1; part < parts; ++part) {
-      for (int64_t k = 0; k < rows * branching; ++k) {
-        indexed_logits_[k] = std::max(indexed_logits_[k], part_logits[part][k]);
-      }
-    }
-  }
-
-  // (list, row) for every list that each indexed row probes, sorted.
-  std::vector<std::pair<uint32_t, uint32_t>> ProbeLists(int64_t rows) {
-    const int64_t lists = index_->NumLists();
-    const int64_t probes = index_->probes();
-    multiply_adds_ += rows * lists * node_output_dim_;
-    std::vector<std::pair<uint32_t, uint32_t>> probed(rows * probes);
-    ForEachRowBlock(rows, [&](int64_t begin, int64_t end) {
-      thread_local BlockScratch scratch;
-      scratch.probe_scores.resize((end - begin) * lists);
-      dense_kernels::Linear(indexed_projected_.data() + begin * node_output_dim_, end - begin,
-                            index_->CentroidWeights(), index_->CentroidBiases(), false,
-                            scratch.probe_scores.data());
-      scratch.probe_order.resize(lists);
-      for (int64_t r = begin; r < end; ++r) {
-        const float* scores = scratch.probe_scores.data() + (r - begin) * lists;
-        std::iota(scratch.probe_order.begin(), scratch.probe_order.end(), 0u);
-        std::nth_element(scratch.probe_order.begin(), scratch.probe_order.begin() + probes - 1,
-                         scratch.probe_order.end(),
-                         [&](uint32_t a, uint32_t b) { return scores[a] > scores[b]; });
-        for (int64_t p = 0; p < probes; ++p) {
-          probed[r * probes + p] = {scratch.probe_order[p], static_cast<uint32_t>(r)};
-        }
-      }
-    });
-    std::sort(probed.begin(), probed.end());
-    return probed;
-  }
-
-  // The probes [first, last) (whole lists), each list's probing rows gathered side by side and
-  // pooled over its points into logits [rows of the run, branching].
-  using ProbeIterator = std::vector<std::pair<uint32_t, uint32_t>>::const_iterator;
-  void ScanProbedLists(ProbeIterator first, ProbeIterator last, float* logits) {
-    const int64_t branching = shape_.branching;
-    thread_local std::vector<float> list_queries, list_logits;
-    for (ProbeIterator p = first; p != last;) {
-      const uint32_t list = p->first;
-      ProbeIterator list_end = p;
-      while (list_end != last && list_end->first == list) ++list_end;
-      const auto count = static_cast<int64_t>(list_end - p);
-      list_queries.resize(count * node_output_dim_);
-      list_logits.resize(count * branching);
-      for (int64_t k = 0; k < count; ++k) {
-        const uint32_t r = p[k].second;
-        std::copy_n(indexed_projected_.data() + r * node_output_dim_, node_output_dim_,
-                    list_queries.data() + k * node_output_dim_);
-        std::copy_n(logits + r * branching, branching, list_logits.data() + k * branching);
-      }
-      const PointRowIndex::Segments segments = index_->SegmentsOf(list);
-      multiply_adds_ +=
-          count * (index_->ListEnd(list) - index_->ListBegin(list)) * node_output_dim_;
-      dense_kernels::PooledMaxLogits(list_queries.data(), count, node_output_dim_,
-                                     index_->Rows(list), segments.starts, segments.labels,
-                                     segments.count, branching, list_logits.data());
-      for (int64_t k = 0; k < count; ++k) {
-        std::copy_n(list_logits.data() + k * branching, branching,
-                    logits + p[k].second * branching);
-      }
-      p = list_end;
     }
   }
 

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numeric>
+#include <utility>
 
 #include "model/dense_kernels.h"
 #include "model/network_decoding.h"
@@ -167,6 +169,104 @@ PointRowIndex::Segments PointRowIndex::SegmentsOf(int64_t list) const {
   const uint64_t first = segment_offsets_[list];
   return {segment_starts_.data() + first + list, segment_labels_.data() + first,
           static_cast<int64_t>(segment_offsets_[list + 1] - first)};
+}
+
+namespace {
+
+constexpr int64_t kProbeBlock = 128;
+using Probe = std::pair<uint32_t, uint32_t>;  // (list, row)
+
+}  // namespace
+
+std::vector<float> PointRowIndex::PooledLogits(const float* projected, int64_t rows,
+                                               int64_t branching, int64_t* multiply_adds) const {
+  const std::vector<Probe> probes = ProbeLists(projected, rows, multiply_adds);
+  const int parts =
+      static_cast<int>(std::min<int64_t>(ResolveNumThreads(ComputeThreads()), NumLists()));
+  std::vector<std::vector<float>> part_logits(parts);
+  std::vector<int64_t> part_multiply_adds(parts, 0);
+  ParallelFor(static_cast<size_t>(parts), parts, [&](size_t first, size_t last) {
+    for (size_t part = first; part < last; ++part) {
+      // Lists [NumLists * part / parts, NumLists * (part + 1) / parts), by their probes.
+      const auto list_bound = [&](size_t k) {
+        const auto list = static_cast<uint32_t>(NumLists() * k / parts);
+        return std::lower_bound(probes.begin(), probes.end(), Probe(list, 0u));
+      };
+      const Probe* begin = probes.data() + (list_bound(part) - probes.begin());
+      const Probe* end = probes.data() + (list_bound(part + 1) - probes.begin());
+      part_logits[part].assign(rows * branching, -std::numeric_limits<float>::infinity());
+      part_multiply_adds[part] =
+          ScanProbedLists(projected, begin, end, branching, part_logits[part].data());
+    }
+  });
+  std::vector<float> logits = std::move(part_logits[0]);
+  for (int part = 1; part < parts; ++part) {
+    for (int64_t k = 0; k < rows * branching; ++k) {
+      logits[k] = std::max(logits[k], part_logits[part][k]);
+    }
+  }
+  *multiply_adds +=
+      std::accumulate(part_multiply_adds.begin(), part_multiply_adds.end(), int64_t{0});
+  return logits;
+}
+
+std::vector<std::pair<uint32_t, uint32_t>> PointRowIndex::ProbeLists(const float* projected,
+                                                                     int64_t rows,
+                                                                     int64_t* multiply_adds) const {
+  const int64_t lists = NumLists();
+  const int64_t dim = row_width_ - 1;
+  *multiply_adds += rows * lists * dim;
+  std::vector<Probe> probed(rows * probes_);
+  const int64_t blocks = (rows + kProbeBlock - 1) / kProbeBlock;
+  ParallelFor(static_cast<size_t>(blocks), ComputeThreads(), [&](size_t first, size_t last) {
+    std::vector<float> scores(kProbeBlock * lists);
+    std::vector<uint32_t> order(lists);
+    for (size_t block = first; block < last; ++block) {
+      const int64_t begin = static_cast<int64_t>(block) * kProbeBlock;
+      const int64_t end = std::min(rows, begin + kProbeBlock);
+      dense_kernels::Linear(projected + begin * dim, end - begin, centroid_weights_,
+                            centroid_biases_.data(), false, scores.data());
+      for (int64_t r = begin; r < end; ++r) {
+        const float* row_scores = scores.data() + (r - begin) * lists;
+        std::iota(order.begin(), order.end(), 0u);
+        std::nth_element(order.begin(), order.begin() + probes_ - 1, order.end(),
+                         [&](uint32_t a, uint32_t b) { return row_scores[a] > row_scores[b]; });
+        for (int64_t p = 0; p < probes_; ++p) {
+          probed[r * probes_ + p] = {order[p], static_cast<uint32_t>(r)};
+        }
+      }
+    }
+  });
+  std::sort(probed.begin(), probed.end());
+  return probed;
+}
+
+int64_t PointRowIndex::ScanProbedLists(const float* projected, const Probe* first,
+                                       const Probe* last, int64_t branching, float* logits) const {
+  const int64_t dim = row_width_ - 1;
+  int64_t multiply_adds = 0;
+  std::vector<float> list_queries, list_logits;
+  for (const Probe* p = first; p != last;) {
+    const uint32_t list = p->first;
+    const Probe* list_end = p;
+    while (list_end != last && list_end->first == list) ++list_end;
+    const auto count = static_cast<int64_t>(list_end - p);
+    list_queries.resize(count * dim);
+    list_logits.resize(count * branching);
+    for (int64_t k = 0; k < count; ++k) {
+      std::copy_n(projected + p[k].second * dim, dim, list_queries.data() + k * dim);
+      std::copy_n(logits + p[k].second * branching, branching, list_logits.data() + k * branching);
+    }
+    const Segments segments = SegmentsOf(list);
+    multiply_adds += count * (ListEnd(list) - ListBegin(list)) * dim;
+    dense_kernels::PooledMaxLogits(list_queries.data(), count, dim, Rows(list), segments.starts,
+                                   segments.labels, segments.count, branching, list_logits.data());
+    for (int64_t k = 0; k < count; ++k) {
+      std::copy_n(list_logits.data() + k * branching, branching, logits + p[k].second * branching);
+    }
+    p = list_end;
+  }
+  return multiply_adds;
 }
 
 }  // namespace hscloc

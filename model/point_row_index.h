@@ -12,6 +12,7 @@
 #pragma once
 
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 #include "map/label_tree.h"
@@ -69,7 +70,25 @@ class PointRowIndex {
   const dense_kernels::PackedMatrix& CentroidWeights() const { return centroid_weights_; }
   const float* CentroidBiases() const { return centroid_biases_.data(); }
 
+  // The first level's logits [rows, branching] of `rows` projections [rows, RowWidth() - 1]: each
+  // row probes probes() lists and keeps, per child, the best score of the points it scored there
+  // (-inf for a child none of whose points it scored). All rows at once, so that each list streams
+  // from memory once for every row that probes it; the lists are split among the compute threads,
+  // and the result does not depend on their number. Adds the multiply-adds done to
+  // *multiply_adds.
+  std::vector<float> PooledLogits(const float* projected, int64_t rows, int64_t branching,
+                                  int64_t* multiply_adds) const;
+
  private:
+  // (list, row) for every list each row probes, sorted.
+  std::vector<std::pair<uint32_t, uint32_t>> ProbeLists(const float* projected, int64_t rows,
+                                                        int64_t* multiply_adds) const;
+  // The probes [first, last) (whole lists), each list's probing rows gathered side by side and
+  // pooled over its points into logits [rows, branching]; returns the multiply-adds done.
+  int64_t ScanProbedLists(const float* projected, const std::pair<uint32_t, uint32_t>* first,
+                          const std::pair<uint32_t, uint32_t>* last, int64_t branching,
+                          float* logits) const;
+
   int64_t row_width_ = 0;
   int probes_ = 0;
   dense_kernels::PackedMatrix centroid_weights_;
