@@ -272,18 +272,46 @@ void PooledMaxLogits(const float* projected, int64_t num_inputs, int64_t dim,
   }
 }
 
+namespace {
+
+// The row's length without its trailing -inf values (children a parent lacks, or none of whose
+// points the image sees): a packet at a time from the end, then value by value.
+int64_t LiveColumns(const float* row, int64_t columns) {
+  const Packet missing = ei::pset1<Packet>(-std::numeric_limits<float>::infinity());
+  int64_t live = columns;
+  while (live >= kLanes) {
+    const Packet is_missing = ei::pcmp_eq(ei::ploadu<Packet>(row + live - kLanes), missing);
+    if (ei::predux_any(ei::pandnot(ei::ptrue(is_missing), is_missing))) break;
+    live -= kLanes;
+  }
+  while (live > 0 && row[live - 1] == -std::numeric_limits<float>::infinity()) --live;
+  return live;
+}
+
+// The largest of values[0, count), count > 0: a maximum is exact, so the order does not matter.
+float MaxOf(const float* values, int64_t count) {
+  Packet maxima = ei::pset1<Packet>(values[0]);
+  int64_t i = 0;
+  for (; i + kLanes <= count; i += kLanes)
+    maxima = ei::pmax(maxima, ei::ploadu<Packet>(values + i));
+  float max = ei::predux_max(maxima);
+  for (; i < count; ++i) max = std::max(max, values[i]);
+  return max;
+}
+
+}  // namespace
+
 void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns) {
   for (int64_t row_index = 0; row_index < rows; ++row_index) {
     float* row = values + row_index * columns;
-    int64_t live = columns;
-    while (live > 0 && row[live - 1] == -std::numeric_limits<float>::infinity()) --live;
+    const int64_t live = LiveColumns(row, columns);
     std::fill(row + live, row + columns, 0.0f);
     if (live == 0) {
       // Every value -inf: exp(-inf - -inf) is NaN on every column, as over the whole row.
       std::fill(row, row + columns, std::numeric_limits<float>::quiet_NaN());
       continue;
     }
-    const float max = *std::max_element(row, row + live);
+    const float max = MaxOf(row, live);
     const Packet shift = ei::pset1<Packet>(max);
     ForEachPacket(row, live, row, [&](const Packet& x) { return ei::pexp(ei::psub(x, shift)); });
     // A fixed summation order: packets from the row's start, then the lanes within a packet. The

@@ -47,6 +47,7 @@
 #include "map/map_bundle.h"
 #include "map/visibility.h"
 #include "scene/features.h"
+#include "util/memory.h"
 
 namespace hscloc {
 
@@ -149,9 +150,9 @@ struct DescriptorLayerCache {
   const float* descriptors = nullptr;  // the matrix it was filled from, and its size
   int64_t rows = 0;
   int64_t cols = 0;
-  std::vector<std::vector<float>> levels;  // empty until that level was computed
+  std::vector<UninitializedVector<float>> levels;  // empty until that level was computed
   // A shared trunk's output [N, H -> C] and the trunk weights it came from (null: none yet).
-  std::vector<float> shared_trunk;
+  UninitializedVector<float> shared_trunk;
   const void* shared_trunk_weight = nullptr;
 };
 

@@ -155,7 +155,7 @@ class CpuForwardPass {
       scaled_descriptors_ *= weights.input_scale / current_scale_;
       current_scale_ = weights.input_scale;
     }
-    std::vector<float>& features = cache_.levels[depth];
+    UninitializedVector<float>& features = cache_.levels[depth];
     if (features.empty()) {
       features.resize(num_descriptors_ * channels_);
       RunDescriptorLayers(weights, layers, features.data());
@@ -167,7 +167,8 @@ class CpuForwardPass {
   // projections are gathered from every block and pooled all at once, so that each list of the
   // index streams from memory once for all the rows that probe it, not once per block.
   void RunLevel(const LevelWeights& weights, int depth, int layers) {
-    SortDecidingRowsByConditioning(depth, weights.node_output_dim > 0);
+    SortDecidingRowsByConditioning(depth, weights.node_output_dim > 0,
+                                   weights.point_rows != nullptr && masks_ != nullptr);
     FindIndexedRun(weights);
     ForEachRowBlock(static_cast<int64_t>(keyed_rows_.size()), [&](int64_t begin, int64_t end) {
       thread_local BlockScratch scratch;
@@ -277,14 +278,20 @@ class CpuForwardPass {
   // children no probability (node or point rows, `only_children_score`): its softmax is 1 on that
   // child, as for a level without choice (SkipLevel). It takes the child here and runs no layer.
   // At a city's finest level many parents hold one point (aachen: 40 % of that level's rows).
-  void SortDecidingRowsByConditioning(int depth, bool only_children_score) {
+  // Pooled point rows under a visibility mask (`only_visible_children_score`) give no
+  // probability to the children the row's image does not see either, so a parent of which the
+  // image sees a single child decides nothing too.
+  void SortDecidingRowsByConditioning(int depth, bool only_children_score,
+                                      bool only_visible_children_score) {
     keyed_rows_.clear();
     for (int64_t row = 0; row < num_rows_; ++row) {
       const int64_t parent = parent_node_[row];
-      if (only_children_score && parent >= 0 &&
-          tree_.NumChildren(static_cast<uint32_t>(parent)) == 1) {
-        LabelOf(row, depth) = 0;
-        parent_node_[row] = ChildNode(parent, 0, tree_);
+      const int64_t only_child = only_children_score && parent >= 0
+                                     ? OnlyChildToScore(row, parent, only_visible_children_score)
+                                     : -1;
+      if (only_child >= 0) {
+        LabelOf(row, depth) = static_cast<uint8_t>(only_child);
+        parent_node_[row] = ChildNode(parent, only_child, tree_);
         continue;
       }
       int64_t key = image_indices_[row / num_descriptors_];
@@ -294,6 +301,26 @@ class CpuForwardPass {
       keyed_rows_.emplace_back(key, row);
     }
     std::sort(keyed_rows_.begin(), keyed_rows_.end());
+  }
+
+  // The one child of `parent` that can score for the row (with `visible_only`, among those its
+  // image sees where it has a mask), or -1 when there are several.
+  int64_t OnlyChildToScore(int64_t row, int64_t parent, bool visible_only) const {
+    const int64_t children = tree_.NumChildren(static_cast<uint32_t>(parent));
+    if (children == 1) return 0;
+    const int slot =
+        visible_only ? masks_->SlotOfK(static_cast<size_t>(row / num_descriptors_)) : -1;
+    if (slot < 0) return -1;
+    const uint32_t first = tree_.FirstChild(static_cast<uint32_t>(parent));
+    int64_t only_child = -1;
+    for (int64_t base = 0; base < children; base += 64) {
+      const int count = static_cast<int>(std::min<int64_t>(64, children - base));
+      const uint64_t bits = masks_->Bits(slot, first + static_cast<uint32_t>(base), count);
+      if (bits == 0) continue;
+      if (only_child >= 0 || (bits & (bits - 1)) != 0) return -1;
+      only_child = base + __builtin_ctzll(bits);
+    }
+    return only_child;
   }
 
   bool StartsRun(int64_t sorted_index, int64_t begin) const {

@@ -5,6 +5,7 @@
 #include <numeric>
 
 #include "model/network.h"
+#include "model/network_decoding.h"
 #include "model/network_module.h"
 #include "model/network_test_support.h"
 #include "util/random.h"
@@ -31,6 +32,24 @@ void ExpectSamePredictions(const PointPredictions& kernels, const PointPredictio
     EXPECT_EQ(kernels.point_indices.data()[r], torch_ops.point_indices.data()[r]);
   }
   EXPECT_GE(agreeing, kernels.labels.rows() * 995 / 1000) << "of " << kernels.labels.rows();
+}
+
+// A level's FLOPs are those of its descriptors, of the deciding rows and of one generator pass
+// per run of rows sharing their modulation: the runs they leave must be a whole number between 1
+// and the deciding rows. A row that did work it need not have breaks the count.
+void ExpectWorkOfDecidingRowsOnly(double level_flops, int64_t descriptor_dim,
+                                  const NetworkOptions& options, int64_t descriptors,
+                                  double deciding, double children_scored) {
+  const double d = static_cast<double>(descriptor_dim), c = options.channels;
+  const double e = options.embedding_dim, h = options.trunk_channels;
+  const double layers = options.conditioned_layers, out = options.node_output_dim;
+  const double per_descriptor = static_cast<double>(descriptors) * (d * h + h * c + c * c);
+  const double per_row = deciding * ((layers - 1) * c * c + c * out) + children_scored * out;
+  const double generator = 2 * (e * e + 2 * layers * e * c);
+  const double runs = (level_flops - 2 * (per_descriptor + per_row)) / generator;
+  EXPECT_DOUBLE_EQ(runs, std::round(runs));
+  EXPECT_GE(runs, 1);
+  EXPECT_LE(runs, deciding);
 }
 
 TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
@@ -212,20 +231,59 @@ TEST(NetworkCpuInferenceTest, RowsWhoseParentHasOneChildTakeItWithoutWork) {
   }
   ASSERT_GT(forced, 50) << "the fixture must have such parents";
   ASSERT_GT(deciding, 0);
-  const double d = fixture.shape.descriptor_dim, c = options.channels;
-  const double e = options.embedding_dim, h = options.trunk_channels;
-  const double layers = options.conditioned_layers, out = options.node_output_dim;
-  const double per_descriptor = n * (d * h + h * c + c * c);
-  const double per_row = deciding * ((layers - 1) * c * c + c * out) + children_scored * out;
-  const double generator = 2 * (e * e + 2 * layers * e * c);
-  const double runs = (predictions.level_flops[last] - 2 * (per_descriptor + per_row)) / generator;
-  EXPECT_DOUBLE_EQ(runs, std::round(runs));
-  EXPECT_GE(runs, 1);
-  EXPECT_LE(runs, deciding);
+  ExpectWorkOfDecidingRowsOnly(predictions.level_flops[last], fixture.shape.descriptor_dim, options,
+                               n, deciding, children_scored);
   // Their confidence is that of the levels above: the torch operators, which run every row,
   // give the only child a probability of 1 too.
   ExpectSamePredictions(predictions, NetworkInternals::PredictWithTorch(
                                          network, descriptors, images, fixture.tree, nullptr));
+}
+
+// Pooled point rows under a visibility mask give the children an image does not see no
+// probability, so a row whose image sees one child of its parent takes it with certainty and no
+// work, as a parent with one child does.
+TEST(NetworkCpuInferenceTest, RowsWhoseImageSeesOneChildTakeItWithoutWork) {
+  const RandomMap fixture = MakeRandomMap(11);
+  const int64_t n = 500;
+  const std::vector<uint32_t> images = {1, 2, 3, 5, 8};
+  const DescriptorMatrix descriptors = RandomDescriptors(n, fixture.shape.descriptor_dim, 6);
+  NetworkOptions options = testing_support::SmallOptions();
+  options.node_output_dim = 8;
+  options.pooled_point_rows = true;
+  const Network network(fixture.shape, options, 7);
+  const PointPredictions predictions =
+      network.Predict(descriptors, images, fixture.tree, &fixture.visibility);
+  const NodeVisibilityMasks masks(images, fixture.tree, fixture.visibility);
+  const int last = fixture.shape.levels - 1;
+  ASSERT_TRUE(fixture.tree.LevelHasChoice(last));
+  // At the last level the children are points: a deciding row scores those its image sees.
+  double deciding = 0, children_scored = 0, forced = 0;
+  for (int64_t row = 0; row < predictions.labels.rows(); ++row) {
+    const int slot = masks.SlotOfK(static_cast<size_t>(row / n));
+    ASSERT_GE(slot, 0);
+    const int64_t parent = fixture.tree.NodeOfLabels(predictions.labels.row(row).data(), last);
+    ASSERT_GE(parent, 0);
+    const uint32_t first = fixture.tree.FirstChild(static_cast<uint32_t>(parent));
+    std::vector<int> seen;
+    for (uint32_t c = 0; c < fixture.tree.NumChildren(static_cast<uint32_t>(parent)); ++c) {
+      if (masks.Contains(slot, first + c)) seen.push_back(static_cast<int>(c));
+    }
+    ASSERT_FALSE(seen.empty()) << "the masked path reached a parent its image does not see";
+    if (seen.size() == 1) {
+      ++forced;
+      EXPECT_EQ(predictions.labels(row, last), seen.front()) << "row " << row;
+    } else {
+      ++deciding;
+      children_scored += static_cast<double>(seen.size());
+    }
+  }
+  ASSERT_GT(forced, 100) << "the fixture must have such rows";
+  ASSERT_GT(deciding, 100);
+  ExpectWorkOfDecidingRowsOnly(predictions.level_flops[last], fixture.shape.descriptor_dim, options,
+                               n, deciding, children_scored);
+  ExpectSamePredictions(
+      predictions, NetworkInternals::PredictWithTorch(network, descriptors, images, fixture.tree,
+                                                      &fixture.visibility));
 }
 
 TEST(NetworkCpuInferenceTest, ThreadCountDoesNotChangeResults) {
@@ -298,6 +356,69 @@ TEST(NetworkCpuInferenceTest, WeightsUpdatedInPlaceReachTheNextPrediction) {
   EXPECT_NE(before.labels, after.labels);
   ExpectSamePredictions(after, NetworkInternals::PredictWithTorch(network, descriptors, images,
                                                                   fixture.tree, nullptr));
+}
+
+// The masked choice against its definition, on a tree of branching 100 (a parent's children span
+// two or three mask words): the most probable child the image sees, the first of equals, and the
+// plain argmax when it sees none.
+TEST(NetworkCpuInferenceTest, MaskedChoiceIsTheFirstMostProbableKeptChild) {
+  Random random(31);
+  const std::vector<Eigen::Vector3d> points = testing_support::RandomPoints(4000, random);
+  const LabelTree tree = testing_support::RandomPointTree(points, 2, 100);
+  std::vector<uint32_t> seen_images, seen_points;
+  for (uint32_t image = 0; image < 3; ++image) {
+    const double share = 0.002 * (image + 1);  // parents with none, a few and many kept children
+    for (uint32_t point = 0; point < points.size(); ++point) {
+      if (random.Bernoulli(share * (point % 7 + 1))) {
+        seen_images.push_back(image);
+        seen_points.push_back(point);
+      }
+    }
+  }
+  const Visibility visibility =
+      Visibility::FromObservations(3, points.size(), seen_images, seen_points);
+  const NodeVisibilityMasks masks({0, 1, 2, 3}, tree, visibility);  // 3: no image, no mask
+  ASSERT_EQ(masks.SlotOfK(3), -1);
+  for (int slot = 0; slot < 3; ++slot) {
+    for (uint32_t first = 0; first + 64 <= tree.NumNodes(); ++first) {
+      for (const int count : {1, 7, 63, 64}) {
+        const uint64_t bits = masks.Bits(slot, first, count);
+        for (int i = 0; i < 64; ++i) {
+          ASSERT_EQ((bits >> i) & 1, i < count && masks.Contains(slot, first + i))
+              << "slot " << slot << ", nodes " << first << " + " << i << " of " << count;
+        }
+      }
+    }
+  }
+  int kept_none = 0;
+  int kept_some = 0;
+  for (int64_t parent = 0; parent <= 100; ++parent) {
+    if (tree.NumChildren(static_cast<uint32_t>(parent)) == 0) continue;
+    const uint32_t first_child = tree.FirstChild(static_cast<uint32_t>(parent));
+    const int64_t children = tree.NumChildren(static_cast<uint32_t>(parent));
+    for (int k = 0; k < 4; ++k) {
+      std::vector<float> probabilities(100);
+      // Few distinct values, so that ties between kept children are common.
+      for (float& p : probabilities) p = static_cast<float>(random.UniformInt(8)) / 8.0f;
+      const int slot = masks.SlotOfK(k);
+      int64_t expected = -1;
+      for (int64_t c = 0; slot >= 0 && c < children; ++c) {
+        if (masks.Contains(slot, first_child + static_cast<uint32_t>(c)) &&
+            (expected < 0 || probabilities[c] > probabilities[expected])) {
+          expected = c;
+        }
+      }
+      (expected < 0 ? kept_none : kept_some) += 1;
+      if (expected < 0) {
+        expected =
+            std::max_element(probabilities.begin(), probabilities.end()) - probabilities.begin();
+      }
+      EXPECT_EQ(ChooseLabel(probabilities.data(), 100, &masks, slot, parent, tree), expected)
+          << "parent " << parent << ", image " << k;
+    }
+  }
+  EXPECT_GT(kept_none, 0);
+  EXPECT_GT(kept_some, 100);
 }
 
 TEST(NetworkCpuInferenceTest, EmptyQueriesGiveEmptyPredictions) {

@@ -24,19 +24,30 @@ struct RandomMap {
   NetworkShape shape;
 };
 
-inline RandomMap MakeRandomMap(uint64_t seed) {
-  Random random(seed);
-  std::vector<Eigen::Vector3d> points(600);
+// Points uniform in a 50 x 50 x 10 box.
+inline std::vector<Eigen::Vector3d> RandomPoints(size_t count, Random& random) {
+  std::vector<Eigen::Vector3d> points(count);
   for (Eigen::Vector3d& point : points) {
     point = {random.Uniform(0, 50), random.Uniform(0, 50), random.Uniform(0, 10)};
   }
+  return points;
+}
+
+inline LabelTree RandomPointTree(const std::vector<Eigen::Vector3d>& points, int levels,
+                                 int branching) {
   LabelTreeOptions tree_options;
-  tree_options.levels = 3;
-  tree_options.branching = 12;
+  tree_options.levels = levels;
+  tree_options.branching = branching;
   tree_options.show_progress = false;
   tree_options.num_threads = 1;
+  return LabelTree::Build(points, tree_options);
+}
+
+inline RandomMap MakeRandomMap(uint64_t seed) {
+  Random random(seed);
+  const std::vector<Eigen::Vector3d> points = RandomPoints(600, random);
   RandomMap map;
-  map.tree = LabelTree::Build(points, tree_options);
+  map.tree = RandomPointTree(points, 3, 12);
   const int num_images = 9;
   std::vector<uint32_t> image_indices;
   std::vector<uint32_t> point_indices;

@@ -1,5 +1,10 @@
-// Process-wide allocator settings.
+// Process-wide allocator settings, and buffers that are not zeroed before they are written.
 #pragma once
+
+#include <memory>
+#include <new>
+#include <utility>
+#include <vector>
 
 namespace hscloc {
 
@@ -9,5 +14,32 @@ namespace hscloc {
 // of a page was a fault the kernel had to zero (half of a training step's CPU time, a tenth of a
 // query's network; docs/decisions.md). Idempotent; affects the whole process.
 void KeepFreedMemoryForReuse();
+
+// An allocator whose default construction leaves a trivial value as it finds it: `resize` on a
+// buffer that is written in full next does not zero it first. The network's per-query
+// activations are such buffers, several megabytes a level.
+template <typename T>
+class UninitializedAllocator : public std::allocator<T> {
+ public:
+  template <typename U>
+  struct rebind {
+    using other = UninitializedAllocator<U>;
+  };
+  UninitializedAllocator() = default;
+  template <typename U>
+  UninitializedAllocator(const UninitializedAllocator<U>&) noexcept {}
+
+  template <typename U>
+  void construct(U* place) {
+    ::new (static_cast<void*>(place)) U;
+  }
+  template <typename U, typename... Args>
+  void construct(U* place, Args&&... args) {
+    ::new (static_cast<void*>(place)) U(std::forward<Args>(args)...);
+  }
+};
+
+template <typename T>
+using UninitializedVector = std::vector<T, UninitializedAllocator<T>>;
 
 }  // namespace hscloc

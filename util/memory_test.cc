@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <sys/resource.h>
 
+#include <algorithm>
 #include <cstring>
 #include <memory>
 
@@ -38,6 +39,20 @@ TEST(MemoryTest, AFreedBlockIsReusedWithoutFaultingItsPagesInAgain) {
   EXPECT_GT(first, 0);
   EXPECT_LT(second, 64) << "first use " << first << " faults";
   EXPECT_LT(third, 64) << "first use " << first << " faults";
+}
+
+// Values given are kept; growing keeps what was there; only the new tail is left unset.
+TEST(MemoryTest, UninitializedVectorKeepsEveryValueItIsGiven) {
+  UninitializedVector<float> values(1000, 2.5f);
+  EXPECT_EQ(std::count(values.begin(), values.end(), 2.5f), 1000);
+  values.resize(5000);
+  EXPECT_EQ(std::count(values.begin(), values.begin() + 1000, 2.5f), 1000);
+  std::fill(values.begin() + 1000, values.end(), -1.0f);
+  values.resize(9000, 7.0f);
+  EXPECT_EQ(std::count(values.begin() + 1000, values.begin() + 5000, -1.0f), 4000);
+  EXPECT_EQ(std::count(values.begin() + 5000, values.end(), 7.0f), 4000);
+  values.push_back(3.0f);
+  EXPECT_EQ(values.back(), 3.0f);
 }
 
 }  // namespace
