@@ -333,22 +333,32 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
   const bool limited =
       options.first_look_samples > 0 && options.first_look_samples < options.pose.max_iterations;
   if (limited) first_look.pose.max_iterations = options.first_look_samples;
-  for (const size_t k : PoseOrder(candidates, begin, end, stop_when_accepted)) {
-    if (CannotBeChosen(candidates, k)) {
-      candidates[k].evaluated = true;  // matched, and its matches may still join the pool
-      continue;
+  const std::vector<size_t> order = PoseOrder(candidates, begin, end, stop_when_accepted);
+  // The early exit decides after every candidate.
+  const size_t group_size = stop_when_accepted ? 1 : kCandidatesPosedTogether;
+  for (size_t first = 0; first < order.size(); first += group_size) {
+    std::vector<size_t> group;
+    for (size_t i = first; i < std::min(order.size(), first + group_size); ++i) {
+      // Matched: even when it is not posed, its matches may still join the pool.
+      candidates[order[i]].evaluated = true;
+      if (!CannotBeChosen(candidates, order[i])) group.push_back(order[i]);
     }
-    AbsolutePoseResult pose = Pose(query, evaluation.matches[k], first_look, candidates);
-    evaluation.first_look_only[k] =
-        limited && pose.num_iterations >= first_look.pose.max_iterations;
-    LocalizationCandidate& candidate = candidates[k];
-    candidate.evaluated = true;
-    candidate.ransac_samples = pose.num_iterations;
-    candidate.pose_found = pose.success;
-    candidate.num_inliers = pose.success ? pose.num_inliers : 0;
-    candidate.cam_from_world = pose.cam_from_world;
-    evaluation.inlier_masks[k] = std::move(pose.inlier_mask);
-    if (stop_when_accepted && candidate.num_inliers >= options.accept_candidate_inliers) break;
+    std::vector<AbsolutePoseResult> poses = PoseTogether(query, group, first_look, evaluation);
+    bool accepted = false;
+    for (size_t i = 0; i < group.size(); ++i) {
+      AbsolutePoseResult& pose = poses[i];
+      const size_t k = group[i];
+      evaluation.first_look_only[k] =
+          limited && pose.num_iterations >= first_look.pose.max_iterations;
+      LocalizationCandidate& candidate = candidates[k];
+      candidate.ransac_samples = pose.num_iterations;
+      candidate.pose_found = pose.success;
+      candidate.num_inliers = pose.success ? pose.num_inliers : 0;
+      candidate.cam_from_world = pose.cam_from_world;
+      evaluation.inlier_masks[k] = std::move(pose.inlier_mask);
+      accepted = accepted || candidate.num_inliers >= options.accept_candidate_inliers;
+    }
+    if (stop_when_accepted && accepted) break;
   }
 }
 

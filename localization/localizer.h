@@ -231,11 +231,16 @@ class Localizer {
                                       size_t begin, size_t end, const LocalizerOptions& options,
                                       DescriptorLayerCache& network_cache) const;
   CandidateMatches FilterVisible(uint32_t image_index, CandidateMatches matches) const;
-  // RANSAC and refinement of one candidate's matches; a pose that cannot beat the best of
-  // `candidates` so far is not sampled for (AbsolutePoseOptions::inliers_to_beat).
+  // RANSAC and refinement of one candidate's matches; a pose with at most `inliers_to_beat`
+  // inliers is not sampled for (AbsolutePoseOptions::inliers_to_beat).
   AbsolutePoseResult Pose(const LocalizationQuery& query, const CandidateMatches& matches,
-                          const LocalizerOptions& options,
-                          const std::vector<LocalizationCandidate>& candidates) const;
+                          const LocalizerOptions& options, int inliers_to_beat) const;
+  // Pose for each of candidates `group`, side by side on the compute threads, each against the
+  // best pose found before the group: the poses do not depend on the number of threads.
+  std::vector<AbsolutePoseResult> PoseTogether(const LocalizationQuery& query,
+                                               const std::vector<size_t>& group,
+                                               const LocalizerOptions& options,
+                                               const Evaluation& evaluation) const;
   // The pose of the round's best candidate (the round's candidates start at `begin`) refined once
   // more, each point now taking the rival keypoint the pose reprojects nearest (rival_matches.h);
   // kept when it has at least as many inliers.

@@ -2,12 +2,19 @@
 // the stages in localizer.cc and the pose stage in localizer_pose_stage.cc, not part of the API.
 #pragma once
 
+#include <cstddef>
 #include <vector>
 
 #include "localization/localizer.h"
 #include "localization/pooled_matches.h"
 
 namespace hscloc {
+
+// Candidates posed side by side (Localizer::PoseTogether), each against the best pose before its
+// group: two keep this machine's two cores busy through a query's tail of failing candidates,
+// while a candidate lacks at most one other's inliers to stop on. A constant, not the thread
+// count, so that the poses are the same on every machine.
+inline constexpr size_t kCandidatesPosedTogether = 2;
 
 // What EvaluateCandidates fills in as candidates are matched and posed.
 struct Localizer::Evaluation {

@@ -8,18 +8,34 @@
 #include "localization/localizer_evaluation.h"
 #include "localization/pooled_matches.h"
 #include "localization/rival_matches.h"
+#include "model/network.h"
+#include "util/parallel.h"
 
 namespace hscloc {
 
 AbsolutePoseResult Localizer::Pose(const LocalizationQuery& query, const CandidateMatches& matches,
-                                   const LocalizerOptions& options,
-                                   const std::vector<LocalizationCandidate>& candidates) const {
+                                   const LocalizerOptions& options, int inliers_to_beat) const {
   AbsolutePoseOptions pose_options = options.pose;
-  // Only a pose with more inliers than the best so far can win: RANSAC need not sample for less.
-  const int best = Choose(candidates);
-  if (best >= 0) pose_options.inliers_to_beat = candidates[best].num_inliers;
+  pose_options.inliers_to_beat = inliers_to_beat;
   return EstimateAbsolutePose(query.camera, KeypointPixels(query, matches), PointPositions(matches),
                               pose_options);
+}
+
+std::vector<AbsolutePoseResult> Localizer::PoseTogether(const LocalizationQuery& query,
+                                                        const std::vector<size_t>& group,
+                                                        const LocalizerOptions& options,
+                                                        const Evaluation& evaluation) const {
+  // Only a pose with more inliers than the best so far can win: RANSAC need not sample for less.
+  const std::vector<LocalizationCandidate>& candidates = evaluation.result.candidates;
+  const int best = Choose(candidates);
+  const int inliers_to_beat = best >= 0 ? candidates[best].num_inliers : 0;
+  std::vector<AbsolutePoseResult> poses(group.size());
+  ParallelFor(group.size(), ComputeThreads(), [&](size_t begin, size_t end) {
+    for (size_t i = begin; i < end; ++i) {
+      poses[i] = Pose(query, evaluation.matches[group[i]], options, inliers_to_beat);
+    }
+  });
+  return poses;
 }
 
 void Localizer::RefineRoundWinner(const LocalizationQuery& query, const LocalizerOptions& options,
@@ -103,19 +119,29 @@ bool Localizer::CompleteFirstLooks(const LocalizationQuery& query, const Localiz
   rest.pose.max_iterations = options.pose.max_iterations - options.first_look_samples;
   // Other samples than the first look's.
   rest.pose.seed = options.pose.seed + 1;
-  bool improved = false;
+  std::vector<size_t> order;
   for (const size_t k : PoseOrder(candidates, 0, candidates.size(), false)) {
-    if (!evaluation.first_look_only[k] || CannotBeChosen(candidates, k)) continue;
-    evaluation.first_look_only[k] = 0;
-    AbsolutePoseResult pose = Pose(query, evaluation.matches[k], rest, candidates);
-    LocalizationCandidate& candidate = candidates[k];
-    candidate.ransac_samples += pose.num_iterations;
-    if (!pose.success || pose.num_inliers <= candidate.num_inliers) continue;
-    improved = true;
-    candidate.pose_found = true;
-    candidate.num_inliers = pose.num_inliers;
-    candidate.cam_from_world = pose.cam_from_world;
-    evaluation.inlier_masks[k] = std::move(pose.inlier_mask);
+    if (evaluation.first_look_only[k]) order.push_back(k);
+  }
+  bool improved = false;
+  for (size_t first = 0; first < order.size(); first += kCandidatesPosedTogether) {
+    std::vector<size_t> group;
+    for (size_t i = first; i < std::min(order.size(), first + kCandidatesPosedTogether); ++i) {
+      evaluation.first_look_only[order[i]] = 0;
+      if (!CannotBeChosen(candidates, order[i])) group.push_back(order[i]);
+    }
+    std::vector<AbsolutePoseResult> poses = PoseTogether(query, group, rest, evaluation);
+    for (size_t i = 0; i < group.size(); ++i) {
+      AbsolutePoseResult& pose = poses[i];
+      LocalizationCandidate& candidate = candidates[group[i]];
+      candidate.ransac_samples += pose.num_iterations;
+      if (!pose.success || pose.num_inliers <= candidate.num_inliers) continue;
+      improved = true;
+      candidate.pose_found = true;
+      candidate.num_inliers = pose.num_inliers;
+      candidate.cam_from_world = pose.cam_from_world;
+      evaluation.inlier_masks[group[i]] = std::move(pose.inlier_mask);
+    }
   }
   return improved;
 }

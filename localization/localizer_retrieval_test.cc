@@ -11,6 +11,7 @@
 
 #include "localization/localizer.h"
 #include "localization/localizer_test_support.h"
+#include "model/network.h"
 #include "retrieval/point_votes.h"
 
 namespace hscloc {
@@ -123,6 +124,38 @@ TEST_F(SmallCityLocalizerTest, WrongGlobalCandidatesDrawOnlyTheirFirstLooks) {
     EXPECT_TRUE(WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], whole));
     EXPECT_TRUE(WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], looked));
   }
+}
+
+// Candidates are posed two at a time on the compute threads, each against the best pose before
+// its pair: every candidate draws the same samples and finds the same pose on one thread as on
+// several. Misled queries pose twenty candidates, most of them failing.
+TEST_F(SmallCityLocalizerTest, PosesDoNotDependOnTheComputeThreads) {
+  const QuerySet& set = Set("day");
+  const int previous_threads = ComputeThreads();
+  const size_t count = std::min<size_t>(set.queries.size(), 4);
+  for (size_t q = 0; q < count; ++q) {
+    SCOPED_TRACE(set.queries[q].name);
+    for (const bool misled : {false, true}) {
+      const LocalizationQuery query = misled ? Misled(localizer().map(), set, q) : set.queries[q];
+      SetComputeThreads(1);
+      const PoseResult one = localizer().Localize(query);
+      SetComputeThreads(3);
+      const PoseResult three = localizer().Localize(query);
+      ASSERT_EQ(one.candidates.size(), three.candidates.size());
+      int posed = 0;
+      for (size_t k = 0; k < one.candidates.size(); ++k) {
+        EXPECT_EQ(one.candidates[k].ransac_samples, three.candidates[k].ransac_samples) << k;
+        EXPECT_EQ(one.candidates[k].num_inliers, three.candidates[k].num_inliers) << k;
+        posed += one.candidates[k].ransac_samples > 0;
+      }
+      EXPECT_GE(posed, misled ? 4 : 2);
+      EXPECT_EQ(one.success, three.success);
+      EXPECT_EQ(one.num_inliers, three.num_inliers);
+      EXPECT_EQ(one.cam_from_world.translation, three.cam_from_world.translation);
+      EXPECT_EQ(one.cam_from_world.rotation.coeffs(), three.cam_from_world.rotation.coeffs());
+    }
+  }
+  SetComputeThreads(previous_threads);
 }
 
 // A candidate that used its first look draws the rest of the budget when it could still win: on

@@ -8,7 +8,6 @@
 #include "localization/nearest_neighbor_matcher.h"
 #include "map/map_blobs.h"
 #include "model/network.h"
-#include "model/network_decoding.h"
 #include "util/check.h"
 #include "util/timer.h"
 

@@ -7,7 +7,7 @@
 
 #include "localization/localizer_test_support.h"
 #include "map/map_bundle.h"
-#include "model/network_decoding.h"
+#include "model/network.h"
 
 namespace hscloc {
 namespace {

@@ -66,6 +66,8 @@ bool IsComputeDeviceAvailable(ComputeDevice device);
 // and libtorch's OpenMP pool one: both pools spin while waiting, and on shared cores they starve
 // each other (training 4 to 25 times slower, docs/decisions.md).
 void SetComputeThreads(int num_threads);
+// The threads SetComputeThreads set (0: all cores).
+int ComputeThreads();
 
 // libtorch's fp32 matrix product of two size x size matrices, in GFLOP/s, over at least
 // `min_seconds` (after a warm-up), with the threads SetComputeThreads gave: the machine's peak

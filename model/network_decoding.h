@@ -120,9 +120,6 @@ inline void ResolvePointIndices(const LabelTree& tree, PointPredictions& result)
   }
 }
 
-// Threads of Predict's CPU kernels, as SetComputeThreads set them (0: all cores).
-int ComputeThreads();
-
 // Network::Predict on the CPU kernels (model/dense_kernels.h); inputs already checked.
 PointPredictions PredictOnCpu(const Network& network, const DescriptorMatrix& descriptors,
                               const std::vector<uint32_t>& image_indices, const LabelTree& tree,
