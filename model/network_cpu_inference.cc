@@ -18,6 +18,7 @@
 #include "model/point_row_index.h"
 #include "util/check.h"
 #include "util/parallel.h"
+#include "util/radix_sort.h"
 #include "util/timer.h"
 
 namespace hscloc {
@@ -300,7 +301,7 @@ class CpuForwardPass {
       }
       keyed_rows_.emplace_back(key, row);
     }
-    std::sort(keyed_rows_.begin(), keyed_rows_.end());
+    StableSortByKey(keyed_rows_, sort_scratch_);
   }
 
   // The one child of `parent` that can score for the row (with `visible_only`, among those its
@@ -566,8 +567,10 @@ class CpuForwardPass {
   // level's.
   DescriptorLayerCache& cache_;
   const float* descriptor_features_ = nullptr;
-  // (image and label prefix, row), sorted.
+  // (image and label prefix, row), sorted; rows come in increasing order, so the stable sort by
+  // key is the pairs' order.
   std::vector<std::pair<int64_t, int64_t>> keyed_rows_;
+  std::vector<std::pair<int64_t, int64_t>> sort_scratch_;
   // The level's multiply-adds so far, from every compute thread.
   std::atomic<int64_t> multiply_adds_{0};
 };
