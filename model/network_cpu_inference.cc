@@ -311,17 +311,9 @@ class CpuForwardPass {
     if (children == 1) return 0;
     const int slot =
         visible_only ? masks_->SlotOfK(static_cast<size_t>(row / num_descriptors_)) : -1;
-    if (slot < 0) return -1;
-    const uint32_t first = tree_.FirstChild(static_cast<uint32_t>(parent));
-    int64_t only_child = -1;
-    for (int64_t base = 0; base < children; base += 64) {
-      const int count = static_cast<int>(std::min<int64_t>(64, children - base));
-      const uint64_t bits = masks_->Bits(slot, first + static_cast<uint32_t>(base), count);
-      if (bits == 0) continue;
-      if (only_child >= 0 || (bits & (bits - 1)) != 0) return -1;
-      only_child = base + __builtin_ctzll(bits);
-    }
-    return only_child;
+    return slot < 0 ? -1
+                    : masks_->OnlyKeptChild(slot, tree_.FirstChild(static_cast<uint32_t>(parent)),
+                                            children);
   }
 
   bool StartsRun(int64_t sorted_index, int64_t begin) const {

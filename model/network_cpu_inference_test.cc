@@ -360,7 +360,7 @@ TEST(NetworkCpuInferenceTest, WeightsUpdatedInPlaceReachTheNextPrediction) {
 
 // The masked choice against its definition, on a tree of branching 100 (a parent's children span
 // two or three mask words): the most probable child the image sees, the first of equals, and the
-// plain argmax when it sees none.
+// plain argmax when it sees none; and the only kept child where there is one.
 TEST(NetworkCpuInferenceTest, MaskedChoiceIsTheFirstMostProbableKeptChild) {
   Random random(31);
   const std::vector<Eigen::Vector3d> points = testing_support::RandomPoints(4000, random);
@@ -392,6 +392,7 @@ TEST(NetworkCpuInferenceTest, MaskedChoiceIsTheFirstMostProbableKeptChild) {
   }
   int kept_none = 0;
   int kept_some = 0;
+  int kept_one = 0;
   for (int64_t parent = 0; parent <= 100; ++parent) {
     if (tree.NumChildren(static_cast<uint32_t>(parent)) == 0) continue;
     const uint32_t first_child = tree.FirstChild(static_cast<uint32_t>(parent));
@@ -408,6 +409,19 @@ TEST(NetworkCpuInferenceTest, MaskedChoiceIsTheFirstMostProbableKeptChild) {
           expected = c;
         }
       }
+      if (slot >= 0) {
+        int64_t only_kept = -1;
+        int kept = 0;
+        for (int64_t c = 0; c < children; ++c) {
+          if (masks.Contains(slot, first_child + static_cast<uint32_t>(c))) {
+            ++kept;
+            only_kept = c;
+          }
+        }
+        EXPECT_EQ(masks.OnlyKeptChild(slot, first_child, children), kept == 1 ? only_kept : -1)
+            << "parent " << parent << ", image " << k << ", " << kept << " kept";
+        kept_one += kept == 1;
+      }
       (expected < 0 ? kept_none : kept_some) += 1;
       if (expected < 0) {
         expected =
@@ -419,6 +433,7 @@ TEST(NetworkCpuInferenceTest, MaskedChoiceIsTheFirstMostProbableKeptChild) {
   }
   EXPECT_GT(kept_none, 0);
   EXPECT_GT(kept_some, 100);
+  EXPECT_GT(kept_one, 0);
 }
 
 TEST(NetworkCpuInferenceTest, EmptyQueriesGiveEmptyPredictions) {

@@ -59,6 +59,19 @@ class NodeVisibilityMasks {
     if (shift != 0 && shift + count > 64) bits |= words[word + 1] << (64 - shift);
     return count == 64 ? bits : bits & ((uint64_t{1} << count) - 1);
   }
+  // Of the `children` nodes from `first` on, the index of the only one the mask keeps; -1 when
+  // it keeps none or several.
+  int64_t OnlyKeptChild(int slot, uint32_t first, int64_t children) const {
+    int64_t only_child = -1;
+    for (int64_t base = 0; base < children; base += 64) {
+      const int count = static_cast<int>(std::min<int64_t>(64, children - base));
+      const uint64_t bits = Bits(slot, first + static_cast<uint32_t>(base), count);
+      if (bits == 0) continue;
+      if (only_child >= 0 || (bits & (bits - 1)) != 0) return -1;
+      only_child = base + __builtin_ctzll(bits);
+    }
+    return only_child;
+  }
 
  private:
   size_t words_;
