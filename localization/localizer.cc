@@ -66,6 +66,9 @@ Localizer::Localizer(std::shared_ptr<const LocalizationMap> map,
                    timer.ElapsedSeconds());
     }
   }
+  if (network_ != nullptr && !network_->shape().point_row_offsets.empty()) {
+    point_row_matcher_ = std::make_shared<const PointRowMatcher>(*network_, map_->label_tree());
+  }
   auto_matcher_ = ResolveMatcher(Matcher::kAuto, map_->metadata(), network_ != nullptr,
                                  nearest_neighbor_ != nullptr);
   CheckOptionsFit(options_);

@@ -18,7 +18,10 @@
 //   Choose         the candidate pose with the most inliers wins
 //   Pool           the matches of every candidate that agrees with the winner's pose, pooled,
 //                  and the winner's pose refined over all their inliers (kept when it has at
-//                  least the winner's inliers; FinalPose::kWinner keeps the paper's pose)
+//                  least the winner's inliers; FinalPose::kWinner keeps the paper's pose); where
+//                  the network keeps several rows per point (a row per view), those candidates
+//                  are first matched again, each against the rows of the points its image sees,
+//                  as nearest neighbour matches (point_row_matches.h)
 // Thread-safe: any number of threads may call Localize concurrently on one Localizer.
 #pragma once
 
@@ -32,6 +35,7 @@
 #include "geometry/rigid3d.h"
 #include "localization/localization_map.h"
 #include "localization/nearest_neighbor_matcher.h"
+#include "localization/point_row_matches.h"
 #include "localization/stage_timings.h"
 #include "model/network.h"
 #include "model/point_row_index.h"
@@ -71,7 +75,10 @@ enum class FinalPose {
   // The matches of the winner and of every candidate with at least AbsolutePoseOptions::
   // min_inliers inliers under the winner's pose, pooled (the network's rival keypoints of a point
   // settled by the winner's reprojection), and the winner's LO-RANSAC pose refined over all of
-  // their inliers (RefineAbsolutePoseFrom); kept when it has at least the winner's inliers.
+  // their inliers (RefineAbsolutePoseFrom); kept when it has at least the winner's inliers. With a
+  // network of several rows per point, each of those candidates' matches are instead the query's
+  // nearest neighbours among the rows of the points its image sees, and the refined pose is kept
+  // when it has at least min_inliers inliers (fewer, cleaner matches than the network's own).
   kPooled,
 };
 // "winner" or "pooled"; throws std::invalid_argument otherwise.
@@ -269,6 +276,11 @@ class Localizer {
   // its RANSAC finds: its pose is then not estimated, which leaves the winner and the final pose
   // as they would be.
   static bool CannotBeChosen(const std::vector<LocalizationCandidate>& candidates, size_t k);
+  // The round winner (evaluation.result.best_candidate) and the candidates its pose explains:
+  // those with at least AbsolutePoseOptions::min_inliers of their matches within the threshold.
+  std::vector<size_t> AgreeingCandidates(const LocalizationQuery& query,
+                                         const LocalizerOptions& options,
+                                         const Evaluation& evaluation) const;
   // The final pose and its matches, from the winner alone or pooled as options.final_pose says.
   struct FinalMatches;
   FinalMatches PoolAgreeingCandidates(const LocalizationQuery& query,
@@ -283,6 +295,9 @@ class Localizer {
   LocalizerOptions options_;
   // Prepared once, when the map has observations.
   std::shared_ptr<const NearestNeighborMatcher> nearest_neighbor_;
+  // The network's point rows, for the pooled final pose, when it keeps several rows per point;
+  // null otherwise.
+  std::shared_ptr<const PointRowMatcher> point_row_matcher_;
   // Built when the network is there to vote.
   std::shared_ptr<const PointVoteIndex> point_votes_;
   // The network's point rows in lists, for the votes' first level on a large map; null otherwise.

@@ -63,35 +63,62 @@ void Localizer::RefineRoundWinner(const LocalizationQuery& query, const Localize
   evaluation.inlier_masks[best] = std::move(pose.inlier_mask);
 }
 
-Localizer::FinalMatches Localizer::PoolAgreeingCandidates(const LocalizationQuery& query,
-                                                          const LocalizerOptions& options,
-                                                          Evaluation& evaluation) const {
+std::vector<size_t> Localizer::AgreeingCandidates(const LocalizationQuery& query,
+                                                  const LocalizerOptions& options,
+                                                  const Evaluation& evaluation) const {
   const auto best = static_cast<size_t>(evaluation.result.best_candidate);
-  const LocalizationCandidate& winner = evaluation.result.candidates[best];
-  FinalMatches final{winner.cam_from_world, winner.num_inliers, std::move(evaluation.matches[best]),
-                     std::move(evaluation.inlier_masks[best])};
-  if (options.final_pose == FinalPose::kWinner) return final;
-
+  const Rigid3d& winner_pose = evaluation.result.candidates[best].cam_from_world;
   // A candidate agrees when the winner's pose explains as many of its matches as a pose needs:
   // a measure in pixels, whatever the map's scale, that a wrong image's matches rarely pass.
   AbsolutePoseOptions counting = options.pose;
   counting.refine = false;
-  // With the network's rival keypoints, all of them: the pooled pose chooses among them below.
-  const auto all_predictions = [&](size_t k, const CandidateMatches& matches) {
-    return evaluation.predictions[k].size() > 0 ? &evaluation.predictions[k] : &matches;
-  };
-  std::vector<const CandidateMatches*> agreeing = {all_predictions(best, final.matches)};
+  std::vector<size_t> agreeing = {best};
   for (size_t k = 0; k < evaluation.matches.size(); ++k) {
     const CandidateMatches& matches = evaluation.matches[k];
     if (k == best || static_cast<int>(matches.size()) < options.pose.min_inliers) continue;
     const AbsolutePoseResult under_winner =
         RefineAbsolutePoseFrom(query.camera, KeypointPixels(query, matches),
-                               PointPositions(matches), winner.cam_from_world, counting);
-    if (under_winner.success) agreeing.push_back(all_predictions(k, matches));
+                               PointPositions(matches), winner_pose, counting);
+    if (under_winner.success) agreeing.push_back(k);
   }
-  if (agreeing.size() == 1) return final;
+  return agreeing;
+}
 
-  CandidateMatches pooled = UniteMatches(agreeing);
+Localizer::FinalMatches Localizer::PoolAgreeingCandidates(const LocalizationQuery& query,
+                                                          const LocalizerOptions& options,
+                                                          Evaluation& evaluation) const {
+  const auto best = static_cast<size_t>(evaluation.result.best_candidate);
+  const std::vector<size_t> agreeing = options.final_pose == FinalPose::kWinner
+                                           ? std::vector<size_t>{best}
+                                           : AgreeingCandidates(query, options, evaluation);
+  const LocalizationCandidate& winner = evaluation.result.candidates[best];
+  FinalMatches final{winner.cam_from_world, winner.num_inliers, std::move(evaluation.matches[best]),
+                     std::move(evaluation.inlier_masks[best])};
+  if (options.final_pose == FinalPose::kWinner) return final;
+
+  std::vector<CandidateMatches> rematched;
+  std::vector<const CandidateMatches*> parts;
+  if (point_row_matcher_ != nullptr) {
+    // Image by image, as nearest neighbour matches: against the points of all of them at once, the
+    // ratio test met more rivals and placed Lund's XFeat queries worse (docs/decisions.md).
+    const DescriptorMatrix unit_query = UnitRows(query.descriptors);
+    const Visibility& visibility = map_->visibility();
+    for (const size_t k : agreeing) {
+      const uint32_t image = evaluation.result.candidates[k].image_index;
+      rematched.push_back(point_row_matcher_->Match(
+          unit_query, {visibility.PointsBegin(image), visibility.PointsEnd(image)},
+          options.nearest_neighbor));
+    }
+    for (const CandidateMatches& matches : rematched) parts.push_back(&matches);
+  } else {
+    if (agreeing.size() == 1) return final;
+    // With the network's rival keypoints, all of them: the pooled pose chooses among them below.
+    for (const size_t k : agreeing) {
+      const CandidateMatches& matches = k == best ? final.matches : evaluation.matches[k];
+      parts.push_back(evaluation.predictions[k].size() > 0 ? &evaluation.predictions[k] : &matches);
+    }
+  }
+  CandidateMatches pooled = UniteMatches(parts);
   // Rivals for a point, from one candidate or several: the one the winner reprojects nearest
   // stands for it (on Lund with SIFT, 25.jpg: 33 -> 38 inliers, 0.269 -> 0.221 m).
   if (!pooled.confidences.empty()) {
@@ -105,7 +132,10 @@ Localizer::FinalMatches Localizer::PoolAgreeingCandidates(const LocalizationQuer
   // 4.3 m off for 2 more inliers; started from the winner, the refinement stays in its basin.
   AbsolutePoseResult pose =
       RefineAbsolutePoseFrom(query.camera, pixels, positions, winner.cam_from_world, options.pose);
-  if (!pose.success || pose.num_inliers < final.num_inliers) return final;
+  // Matches of the point rows are fewer than the network's: a pose needs its minimum of them.
+  const int inliers_needed =
+      point_row_matcher_ != nullptr ? options.pose.min_inliers : final.num_inliers;
+  if (!pose.success || pose.num_inliers < inliers_needed) return final;
   return {pose.cam_from_world, pose.num_inliers, std::move(pooled), std::move(pose.inlier_mask),
           static_cast<int>(agreeing.size())};
 }

@@ -29,50 +29,74 @@ NearestNeighborMatcher::NearestNeighborMatcher(const Scene& scene) {
   NormalizeRows(unit_descriptors_);
 }
 
+CandidateMatches MatchNearestRows(const DescriptorMatrix& unit_query,
+                                  const Eigen::Ref<const DescriptorMatrix>& rows,
+                                  const uint32_t* row_points,
+                                  const NearestNeighborOptions& options) {
+  CandidateMatches matches;
+  const int64_t count = rows.rows();
+  if (unit_query.rows() == 0 || count == 0) return matches;
+  // Row-major, so that both scans below read it in memory order: a query's row here, and every
+  // column's running best query in the mutual check.
+  const Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> similarity =
+      unit_query * rows.transpose();
+  std::vector<int> best_query_of_row;
+  if (options.mutual) {
+    // The first query of the largest similarity, as maxCoeff would find it column by column.
+    best_query_of_row.assign(count, 0);
+    std::vector<float> best_of_row(similarity.row(0).begin(), similarity.row(0).end());
+    for (int64_t query_row = 1; query_row < similarity.rows(); ++query_row) {
+      const float* values = similarity.row(query_row).data();
+      for (int64_t j = 0; j < count; ++j) {
+        if (values[j] > best_of_row[j]) {
+          best_of_row[j] = values[j];
+          best_query_of_row[j] = static_cast<int>(query_row);
+        }
+      }
+    }
+  }
+  // For unit vectors, squared distance = 2 - 2 cos.
+  const auto squared_distance = [](float cosine) { return std::max(0.0f, 2 - 2 * cosine); };
+  const double squared_ratio = options.ratio * options.ratio;
+  for (int64_t query_row = 0; query_row < similarity.rows(); ++query_row) {
+    // The best row, and the best row of any other point.
+    float best = -std::numeric_limits<float>::infinity();
+    float second = -std::numeric_limits<float>::infinity();
+    int64_t best_row = -1;
+    const float* values = similarity.row(query_row).data();
+    for (int64_t j = 0; j < count; ++j) {
+      const float cosine = values[j];
+      const bool same_point = best_row >= 0 && row_points[j] == row_points[best_row];
+      if (cosine > best) {
+        if (!same_point) second = best;
+        best = cosine;
+        best_row = j;
+      } else if (cosine > second && !same_point) {
+        second = cosine;
+      }
+    }
+    if (best_row < 0) continue;
+    if (std::isfinite(second) &&
+        squared_distance(best) >= squared_ratio * squared_distance(second)) {
+      continue;
+    }
+    if (options.mutual && best_query_of_row[best_row] != query_row) continue;
+    matches.keypoints.push_back(static_cast<int>(query_row));
+    matches.point_indices.push_back(row_points[best_row]);
+  }
+  return matches;
+}
+
 CandidateMatches NearestNeighborMatcher::Match(const DescriptorMatrix& unit_query,
                                                uint32_t image_index,
                                                const NearestNeighborOptions& options) const {
   THROW_CHECK_MSG(image_index + 1 < offsets_.size(),
                   "NearestNeighborMatcher: image index {} of {} images", image_index,
                   offsets_.empty() ? 0 : offsets_.size() - 1);
-  CandidateMatches matches;
   const int64_t first = offsets_[image_index];
   const int64_t count = offsets_[image_index + 1] - first;
-  if (unit_query.rows() == 0 || count == 0) return matches;
-  const Eigen::MatrixXf similarity =
-      unit_query * unit_descriptors_.middleRows(first, count).transpose();
-  std::vector<int> best_query_of_observation;
-  if (options.mutual) {
-    best_query_of_observation.resize(count);
-    for (int64_t j = 0; j < count; ++j) similarity.col(j).maxCoeff(&best_query_of_observation[j]);
-  }
-  // For unit vectors, squared distance = 2 - 2 cos.
-  const auto squared_distance = [](float cosine) { return std::max(0.0f, 2 - 2 * cosine); };
-  const double squared_ratio = options.ratio * options.ratio;
-  for (int64_t query_row = 0; query_row < similarity.rows(); ++query_row) {
-    float best = -std::numeric_limits<float>::infinity();
-    float second = -std::numeric_limits<float>::infinity();
-    int64_t best_observation = -1;
-    for (int64_t j = 0; j < count; ++j) {
-      const float cosine = similarity(query_row, j);
-      if (cosine > best) {
-        second = best;
-        best = cosine;
-        best_observation = j;
-      } else if (cosine > second) {
-        second = cosine;
-      }
-    }
-    if (best_observation < 0) continue;
-    if (std::isfinite(second) &&
-        squared_distance(best) >= squared_ratio * squared_distance(second)) {
-      continue;
-    }
-    if (options.mutual && best_query_of_observation[best_observation] != query_row) continue;
-    matches.keypoints.push_back(static_cast<int>(query_row));
-    matches.point_indices.push_back(point_indices_[first + best_observation]);
-  }
-  return matches;
+  return MatchNearestRows(unit_query, unit_descriptors_.middleRows(first, count),
+                          point_indices_.data() + first, options);
 }
 
 }  // namespace hscloc

@@ -1,5 +1,6 @@
 // The explicit-matching baseline: mutual nearest neighbours with Lowe's ratio test between a
-// query's descriptors and the observations of one database image (Lowe, IJCV 2004).
+// query's descriptors and the observations of one database image (Lowe, IJCV 2004). The same
+// matching serves other rows that stand for points (localization/point_row_matches.h).
 #pragma once
 
 #include <cstdint>
@@ -23,13 +24,24 @@ struct CandidateMatches {
 };
 
 struct NearestNeighborOptions {
-  // Lowe's ratio on descriptor distances; 1 accepts every best match.
+  // Lowe's ratio on descriptor distances, the best row's against the best row of another point (an
+  // image's observations are one per point; other rows may hold several per point); 1 accepts
+  // every best match.
   double ratio = 0.9;
   // Keep a match only when the query keypoint is also the observation's best match.
   bool mutual = true;
 
   void Check() const;
 };
+
+// Mutual nearest neighbours with the ratio test between unit query rows and unit `rows`, row r
+// standing for point row_points[r]: for each query row its best row, kept when the best row of any
+// other point is far enough behind (options.ratio) and, with options.mutual, when the query row is
+// also that row's best. Matches in query row order.
+CandidateMatches MatchNearestRows(const DescriptorMatrix& unit_query,
+                                  const Eigen::Ref<const DescriptorMatrix>& rows,
+                                  const uint32_t* row_points,
+                                  const NearestNeighborOptions& options);
 
 class NearestNeighborMatcher {
  public:

@@ -80,6 +80,29 @@ TEST(NearestNeighborMatcher, MutualCheckKeepsOnlyTheObservationsBestQuery) {
               ElementsAre(0, 1));
 }
 
+// Rows standing for points, several per point: the ratio test weighs the best row against the
+// best row of another point, so a query near two rows of one point (two views of it) is not
+// rejected as ambiguous.
+TEST(NearestNeighborMatcher, RatioTestComparesOtherPointsNotOtherRowsOfOnePoint) {
+  const DescriptorMatrix descriptors = RandomUnitRows(3, 32, 8);
+  DescriptorMatrix rows(3, 32);
+  rows << UnitRows(descriptors.row(0) + 0.05f * descriptors.row(2)),
+      UnitRows(descriptors.row(0) - 0.05f * descriptors.row(2)), descriptors.row(1);
+  const DescriptorMatrix query = descriptors.row(0);
+  const NearestNeighborOptions options{.ratio = 0.8, .mutual = true};
+  const std::vector<uint32_t> one_point_two_rows = {7, 7, 9};
+  EXPECT_THAT(MatchNearestRows(query, rows, one_point_two_rows.data(), options).point_indices,
+              ElementsAre(7));
+  // Two points with those rows: now the query is ambiguous.
+  const std::vector<uint32_t> two_points = {7, 8, 9};
+  EXPECT_THAT(MatchNearestRows(query, rows, two_points.data(), options).keypoints, IsEmpty());
+  // The best row of another point may come before or after the best row.
+  const DescriptorMatrix reversed = rows.colwise().reverse();
+  const std::vector<uint32_t> reversed_points = {9, 7, 7};
+  EXPECT_THAT(MatchNearestRows(query, reversed, reversed_points.data(), options).point_indices,
+              ElementsAre(7));
+}
+
 TEST(NearestNeighborMatcher, EmptySceneAndBadImageIndex) {
   EXPECT_TRUE(NearestNeighborMatcher(Scene()).empty());
   const NearestNeighborMatcher matcher(TwoImageScene(RandomUnitRows(6, 8, 4)));

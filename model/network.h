@@ -125,8 +125,9 @@ struct NetworkOptions {
   // projection, with P starting at zero and the rows at the points' mean training descriptors. The
   // untrained network is then the nearest-class-mean matcher among the points each image sees, and
   // training learns a correction. On Lund it reaches the class means' held-out accuracy at a
-  // seventh of the default's bytes, but places the queries no better (docs/decisions.md, "The
-  // network on real photos"): an option, not a default.
+  // seventh of the bytes of the wider network, and it is the default below
+  // kMinPointsForNodeOutputRows points (model/trainer.h; docs/decisions.md, "The network on real
+  // photos").
   bool descriptor_shortcut = false;
   // Trained with the visibility softmax: decode with the visibility mask (the Localizer does so on
   // its own for such a network).
@@ -241,6 +242,10 @@ class Network {
   // identical (image, label prefix) rows that Predict performs. Levels of `tree` that offer no
   // choice cost nothing (Predict skips them).
   double PredictFlops(int64_t num_descriptors, int64_t num_images, const LabelTree& tree) const;
+
+  // The pooled point rows, [NumPointRows() x (width + 1)] row-major (a row's weights, then its
+  // bias), with their width; empty without pooled point rows.
+  std::vector<float> PointRows(int64_t* width) const;
 
   // True when both networks have the same shape, options and bit-identical weights.
   bool HasSameWeights(const Network& other) const;

@@ -269,6 +269,16 @@ Network Network::FromBundle(const MapBundle& bundle, ComputeDevice device) {
   return Load(stream, (bundle.dir() / map_blobs::kNetwork).string(), device);
 }
 
+std::vector<float> Network::PointRows(int64_t* width) const {
+  const torch::Tensor& rows = impl_->module->point_rows;
+  *width = 0;
+  if (!rows.defined()) return {};
+  const torch::Tensor table = rows.detach().to(torch::kCPU, torch::kFloat32).contiguous();
+  *width = table.size(1) - 1;
+  const float* data = table.data_ptr<float>();
+  return std::vector<float>(data, data + table.numel());
+}
+
 bool Network::HasSameWeights(const Network& other) const {
   if (!(shape() == other.shape()) || !(options() == other.options())) return false;
   const auto mine = impl_->module->named_parameters();

@@ -350,7 +350,8 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
   command
       ->add_option("--point-prototypes", options.point_prototypes,
                    "Pooled point rows: rows per point at most, each started from the point's own "
-                   "training views")
+                   "training views; with more than one, the final pose matches them as nearest "
+                   "neighbours (64 on a small map: a row per view)")
       ->check(CLI::Range(1, kMaxPointPrototypes))
       ->capture_default_str();
   command
