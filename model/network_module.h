@@ -169,6 +169,8 @@ TORCH_MODULE(HscNet);
 // PointCandidates) belongs to row rows[i] and falls under child groups[i] of that row's parent.
 // CPU int64 tensors [T].
 struct FlatCandidates {
+  // Candidate i: table row ranks[i] for row rows[i], under child groups[i] (its point's label at
+  // the level, the same wherever the table row appears).
   torch::Tensor ranks, rows, groups;
   // Training only: the table rows of each row's observed point, true_ranks[i] of row
   // true_rows[i] ([T']; true_rows may be left undefined when there is one per row, in row

@@ -16,10 +16,18 @@ FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* sl
   for (int64_t r = begin; r < end; ++r) {
     if (parent_nodes[r] < 0) continue;
     const CandidateSpan span = candidates.Under(slots[r], static_cast<uint32_t>(parent_nodes[r]));
+    rows.insert(rows.end(), span.size, r - begin);
+    // A span's table rows ascend and a point's rows are adjacent: its label is looked up once.
+    uint32_t end_of_point = 0;
+    int64_t group = 0;
     for (size_t i = 0; i < span.size; ++i) {
+      if (i == 0 || span[i] >= end_of_point) {
+        const uint32_t rank = candidates.RankOfRow(span[i]);
+        end_of_point = candidates.FirstRowOfRank(rank + 1);
+        group = candidates.LabelOfRow(span[i], level);
+      }
       ranks.push_back(span[i]);
-      rows.push_back(r - begin);
-      groups.push_back(candidates.LabelOfRow(span[i], level));
+      groups.push_back(group);
     }
   }
   const auto tensor = [](std::vector<int64_t>& values) {
@@ -39,6 +47,10 @@ constexpr int64_t kPieceBytes = int64_t{16} << 20;
 // Candidate scores computes the dense [rows, distinct candidates] product where it holds at most
 // this many cells per candidate it needs.
 constexpr int64_t kDenseScoresPerCandidate = 4;
+
+// DenseLogSumExp's bounds: cells per candidate, and cells in all (64 MiB per float table).
+constexpr int64_t kDenseCellsPerCandidate = 32;
+constexpr int64_t kMaxDenseCells = int64_t{1} << 24;
 
 // point_rows[ranks]; with a sparse gradient (embedding's) the backward pass touches only those
 // rows, where index_select's allocates and fills the whole table's gradient at every step.
@@ -112,17 +124,15 @@ torch::Tensor TrueScores(const torch::Tensor& projected, const torch::Tensor& po
   return scores.index_select(0, torch::tensor(best, torch::kInt64).to(scores.device()));
 }
 
-}  // namespace
-
-torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Tensor& point_rows,
-                                const FlatCandidates& candidates, int64_t branching,
-                                Pooling pooling, bool sparse_gradient) {
-  const torch::Device device = projected.device();
+// Log-sum-exp or maximum per cell (row * branching + child) over the candidates one at a time:
+// [R, branching], -inf where a cell has none.
+torch::Tensor SparsePooling(const torch::Tensor& projected, const torch::Tensor& point_rows,
+                            const torch::Tensor& ranks, const torch::Tensor& rows,
+                            const torch::Tensor& groups, int64_t branching, Pooling pooling,
+                            bool sparse_gradient) {
   const int64_t num_rows = projected.size(0);
-  const torch::Tensor rows = candidates.rows.to(device);
-  const torch::Tensor cells = rows * branching + candidates.groups.to(device);
-  const torch::Tensor scores =
-      CandidateScores(projected, point_rows, candidates.ranks.to(device), rows, sparse_gradient);
+  const torch::Tensor cells = rows * branching + groups;
+  const torch::Tensor scores = CandidateScores(projected, point_rows, ranks, rows, sparse_gradient);
   // The maximum per cell: the pooled logit itself, or log-sum-exp's stabilizer (a constant for
   // the gradient).
   const torch::Tensor best = CellMaxima(cells, scores, num_rows * branching);
@@ -136,7 +146,84 @@ torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Ten
     logits = (sums.clamp_min(1e-30).log() + stable)
                  .masked_fill(best.isneginf(), -std::numeric_limits<float>::infinity());
   }
-  logits = logits.view({num_rows, branching});
+  return logits.view({num_rows, branching});
+}
+
+// The distinct table rows among `ranks`, ascending, and the position of each rank among them;
+// through a mark per table row, for a small table.
+std::pair<torch::Tensor, torch::Tensor> DistinctRows(const torch::Tensor& ranks,
+                                                     int64_t table_rows) {
+  const torch::Tensor seen =
+      torch::zeros({table_rows}, ranks.options().dtype(torch::kBool)).index_fill_(0, ranks, true);
+  const torch::Tensor distinct = seen.nonzero().squeeze(1);
+  const torch::Tensor position_of_row =
+      torch::empty({table_rows}, ranks.options())
+          .index_copy_(0, distinct, torch::arange(distinct.size(0), ranks.options()));
+  return {distinct, position_of_row.index_select(0, ranks)};
+}
+
+// Whether DenseLogSumExp pools these candidates: on a small table (every row against every table
+// row stays under kMaxDenseCells) where the dense cells are at most kDenseCellsPerCandidate per
+// candidate. A dense cell costs a multiply-add per width in a matrix product and a few passes of
+// plain memory; a candidate of SparsePooling gathers a table row and goes through a chain of
+// gathers and scatters, far more.
+bool IsDense(int64_t num_rows, int64_t table_rows, int64_t num_candidates) {
+  return num_candidates > 0 && num_rows * table_rows <= kMaxDenseCells &&
+         num_rows * table_rows <= kDenseCellsPerCandidate * num_candidates;
+}
+
+// SparsePooling's log-sum-exp on dense [distinct candidates, rows] tables: a mask keeps each
+// row's own candidates and a sum over table rows pools each child's, so that no per-candidate
+// gather, scatter or loop is left (with a row per view these were most of a small map's training
+// step). Each row's largest candidate score stabilizes its exponentials: a child more than ~69
+// below it gets log(1e-30) above that maximum rather than its exact logit, a probability of 0
+// either way.
+torch::Tensor DenseLogSumExp(const torch::Tensor& projected, const torch::Tensor& point_rows,
+                             const torch::Tensor& ranks, const torch::Tensor& rows,
+                             const torch::Tensor& groups, int64_t branching, bool sparse_gradient) {
+  const int64_t num_rows = projected.size(0);
+  const auto [distinct, position] = DistinctRows(ranks, point_rows.size(0));
+  const int64_t num_distinct = distinct.size(0);
+  // Table rows by row: pooling a child adds whole rows of these tables, in memory order.
+  const torch::Tensor is_candidate =
+      torch::zeros({num_distinct * num_rows}, projected.options().dtype(torch::kBool))
+          .index_fill_(0, position * num_rows + rows, true)
+          .view({num_distinct, num_rows});
+  const torch::Tensor child_of_distinct =
+      torch::empty({num_distinct}, groups.options()).index_copy_(0, position, groups);
+  const torch::Tensor scores =
+      torch::matmul(GatherRows(point_rows, distinct, sparse_gradient), projected.t())
+          .masked_fill(is_candidate.logical_not(), -std::numeric_limits<float>::infinity());
+  const torch::Tensor stable =
+      std::get<0>(scores.detach().max(0, /*keepdim=*/true)).clamp_min(-1e30);
+  const torch::Tensor sums = torch::zeros({branching, num_rows}, projected.options())
+                                 .index_add(0, child_of_distinct, (scores - stable).exp());
+  const torch::Tensor has_candidates =
+      torch::zeros({branching, num_rows}, projected.options())
+          .index_add(0, child_of_distinct, is_candidate.to(projected.scalar_type()))
+          .gt(0);
+  return (sums.clamp_min(1e-30).log() + stable)
+      .masked_fill(has_candidates.logical_not(), -std::numeric_limits<float>::infinity())
+      .t();
+}
+
+}  // namespace
+
+torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Tensor& point_rows,
+                                const FlatCandidates& candidates, int64_t branching,
+                                Pooling pooling, bool sparse_gradient) {
+  const torch::Device device = projected.device();
+  const int64_t num_rows = projected.size(0);
+  const torch::Tensor rows = candidates.rows.to(device);
+  const torch::Tensor ranks = candidates.ranks.to(device);
+  torch::Tensor logits;
+  if (pooling == Pooling::kLogSumExp && IsDense(num_rows, point_rows.size(0), ranks.size(0))) {
+    logits = DenseLogSumExp(projected, point_rows, ranks, rows, candidates.groups.to(device),
+                            branching, sparse_gradient);
+  } else {
+    logits = SparsePooling(projected, point_rows, ranks, rows, candidates.groups.to(device),
+                           branching, pooling, sparse_gradient);
+  }
   if (candidates.true_ranks.defined()) {
     const torch::Tensor true_scores =
         TrueScores(projected, point_rows, candidates.true_ranks.to(device), candidates.true_rows,
