@@ -49,7 +49,7 @@ constexpr int64_t kPieceBytes = int64_t{16} << 20;
 constexpr int64_t kDenseScoresPerCandidate = 4;
 
 // DenseLogSumExp's bounds: cells per candidate, and cells in all (64 MiB per float table).
-constexpr int64_t kDenseCellsPerCandidate = 32;
+constexpr int64_t kDenseCellsPerCandidate = 8;
 constexpr int64_t kMaxDenseCells = int64_t{1} << 24;
 
 // point_rows[ranks]; with a sparse gradient (embedding's) the backward pass touches only those

@@ -168,7 +168,7 @@ TEST(PooledPointLogitsTest, SharedAndDistinctCandidatesScoreAsTheirDefinition) {
       shared_groups.push_back(rank % branching);
     }
     for (int64_t i = 0; i < 2; ++i) {
-      own_ranks.push_back(40 + 2 * row + i);
+      own_ranks.push_back(18 + 2 * row + i);
       own_rows.push_back(row);
       own_groups.push_back((row + i) % branching);
     }
@@ -176,9 +176,9 @@ TEST(PooledPointLogitsTest, SharedAndDistinctCandidatesScoreAsTheirDefinition) {
   const auto as_tensor = [](const std::vector<int64_t>& values) {
     return torch::tensor(values, torch::kInt64);
   };
-  // 100 table rows: 600 dense cells, at most 32 per candidate for the 30 shared candidates, more
+  // 40 table rows: 240 dense cells, at most 8 per candidate for the 30 shared candidates, more
   // for the 12 distinct ones.
-  const torch::Tensor start_table = torch::randn({100, width});
+  const torch::Tensor start_table = torch::randn({40, width});
   const torch::Tensor start_projected = torch::randn({rows, width});
   const torch::Tensor targets = torch::tensor({0, 1, 2, 0, 1, 2}, torch::kInt64);
   for (const bool shared : {true, false}) {
