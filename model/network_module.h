@@ -179,12 +179,18 @@ struct FlatCandidates {
   // points of its child (which an untrained level cannot tell apart); the other children still pool
   // all their candidates.
   torch::Tensor true_ranks, true_groups, true_rows;
+  // The dense form, for a log-sum-exp where most rows share their candidates (GatherCandidates
+  // with `allow_dense`; ranks, rows and groups are then undefined): the distinct table rows [U],
+  // the child of each [U], and whether each is a candidate of each row, [U, R].
+  torch::Tensor dense_table_rows, dense_children, dense_mask;
 };
 // The candidates of rows [begin, end): row r pools over the points under parent_nodes[r] that
 // slot slots[r] observes (PointCandidates::Under); rows whose parent is < 0 get none. Row ids in
-// the result count from 0 at `begin`.
+// the result count from 0 at `begin`. With `allow_dense` (training's log-sum-exp), the dense form
+// where it is the cheaper one.
 FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* slots,
-                                const int64_t* parent_nodes, int64_t begin, int64_t end, int level);
+                                const int64_t* parent_nodes, int64_t begin, int64_t end, int level,
+                                bool allow_dense = false);
 
 enum class Pooling { kLogSumExp, kMax };
 // Logits [R, branching] of pooled point rows: child c of row r scores the pooling of

@@ -2,40 +2,14 @@
 // (model/network_module.h).
 #include <algorithm>
 #include <limits>
+#include <stdexcept>
 #include <tuple>
+#include <unordered_map>
 #include <vector>
 
 #include "model/network_module.h"
 
 namespace hscloc {
-
-FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* slots,
-                                const int64_t* parent_nodes, int64_t begin, int64_t end,
-                                int level) {
-  std::vector<int64_t> ranks, rows, groups;
-  for (int64_t r = begin; r < end; ++r) {
-    if (parent_nodes[r] < 0) continue;
-    const CandidateSpan span = candidates.Under(slots[r], static_cast<uint32_t>(parent_nodes[r]));
-    rows.insert(rows.end(), span.size, r - begin);
-    // A span's table rows ascend and a point's rows are adjacent: its label is looked up once.
-    uint32_t end_of_point = 0;
-    int64_t group = 0;
-    for (size_t i = 0; i < span.size; ++i) {
-      if (i == 0 || span[i] >= end_of_point) {
-        const uint32_t rank = candidates.RankOfRow(span[i]);
-        end_of_point = candidates.FirstRowOfRank(rank + 1);
-        group = candidates.LabelOfRow(span[i], level);
-      }
-      ranks.push_back(span[i]);
-      groups.push_back(group);
-    }
-  }
-  const auto tensor = [](std::vector<int64_t>& values) {
-    return torch::from_blob(values.data(), {static_cast<int64_t>(values.size())}, torch::kInt64)
-        .clone();
-  };
-  return {tensor(ranks), tensor(rows), tensor(groups), {}, {}, {}};
-}
 
 namespace {
 
@@ -51,6 +25,12 @@ constexpr int64_t kDenseScoresPerCandidate = 4;
 // DenseLogSumExp's bounds: cells per candidate, and cells in all (64 MiB per float table).
 constexpr int64_t kDenseCellsPerCandidate = 8;
 constexpr int64_t kMaxDenseCells = int64_t{1} << 24;
+
+// A copy of `values` as a tensor.
+torch::Tensor Int64Tensor(std::vector<int64_t>& values) {
+  return torch::from_blob(values.data(), {static_cast<int64_t>(values.size())}, torch::kInt64)
+      .clone();
+}
 
 // point_rows[ranks]; with a sparse gradient (embedding's) the backward pass touches only those
 // rows, where index_select's allocates and fills the whole table's gradient at every step.
@@ -149,20 +129,7 @@ torch::Tensor SparsePooling(const torch::Tensor& projected, const torch::Tensor&
   return logits.view({num_rows, branching});
 }
 
-// The distinct table rows among `ranks`, ascending, and the position of each rank among them;
-// through a mark per table row, for a small table.
-std::pair<torch::Tensor, torch::Tensor> DistinctRows(const torch::Tensor& ranks,
-                                                     int64_t table_rows) {
-  const torch::Tensor seen =
-      torch::zeros({table_rows}, ranks.options().dtype(torch::kBool)).index_fill_(0, ranks, true);
-  const torch::Tensor distinct = seen.nonzero().squeeze(1);
-  const torch::Tensor position_of_row =
-      torch::empty({table_rows}, ranks.options())
-          .index_copy_(0, distinct, torch::arange(distinct.size(0), ranks.options()));
-  return {distinct, position_of_row.index_select(0, ranks)};
-}
-
-// Whether DenseLogSumExp pools these candidates: on a small table (every row against every table
+// Whether the dense form pools these candidates: on a small table (every row against every table
 // row stays under kMaxDenseCells) where the dense cells are at most kDenseCellsPerCandidate per
 // candidate. A dense cell costs a multiply-add per width in a matrix product and a few passes of
 // plain memory; a candidate of SparsePooling gathers a table row and goes through a chain of
@@ -172,57 +139,161 @@ bool IsDense(int64_t num_rows, int64_t table_rows, int64_t num_candidates) {
          num_rows * table_rows <= kDenseCellsPerCandidate * num_candidates;
 }
 
-// SparsePooling's log-sum-exp on dense [distinct candidates, rows] tables: a mask keeps each
-// row's own candidates and a sum over table rows pools each child's, so that no per-candidate
-// gather, scatter or loop is left (with a row per view these were most of a small map's training
-// step). Each row's largest candidate score stabilizes its exponentials: a child more than ~69
-// below it gets log(1e-30) above that maximum rather than its exact logit, a probability of 0
-// either way.
+// The dense form of flat candidates (FlatCandidates::dense_*), through a mark per table row.
+void MakeDense(FlatCandidates& flat, int64_t num_rows, int64_t table_rows) {
+  const torch::Tensor& ranks = flat.ranks;
+  const torch::Tensor seen =
+      torch::zeros({table_rows}, ranks.options().dtype(torch::kBool)).index_fill_(0, ranks, true);
+  flat.dense_table_rows = seen.nonzero().squeeze(1);
+  const int64_t num_distinct = flat.dense_table_rows.size(0);
+  const torch::Tensor position =
+      torch::empty({table_rows}, ranks.options())
+          .index_copy_(0, flat.dense_table_rows, torch::arange(num_distinct, ranks.options()))
+          .index_select(0, ranks);
+  flat.dense_children =
+      torch::empty({num_distinct}, flat.groups.options()).index_copy_(0, position, flat.groups);
+  flat.dense_mask = torch::zeros({num_distinct * num_rows}, ranks.options().dtype(torch::kBool))
+                        .index_fill_(0, position * num_rows + flat.rows, true)
+                        .view({num_distinct, num_rows});
+}
+
+// SparsePooling's log-sum-exp on the dense form: one matrix product scores every row against
+// every table row in it, the mask keeps each row's own candidates and a sum over table rows pools
+// each child's, so that no per-candidate gather, scatter or loop is left (with a row per view
+// these were most of a small map's training step). Each row's largest candidate score stabilizes
+// its exponentials: a child more than ~69 below it gets log(1e-30) above that maximum rather than
+// its exact logit, a probability of 0 either way.
 torch::Tensor DenseLogSumExp(const torch::Tensor& projected, const torch::Tensor& point_rows,
-                             const torch::Tensor& ranks, const torch::Tensor& rows,
-                             const torch::Tensor& groups, int64_t branching, bool sparse_gradient) {
+                             const FlatCandidates& dense, int64_t branching, bool sparse_gradient) {
+  const torch::Device device = projected.device();
   const int64_t num_rows = projected.size(0);
-  const auto [distinct, position] = DistinctRows(ranks, point_rows.size(0));
-  const int64_t num_distinct = distinct.size(0);
+  const torch::Tensor is_candidate = dense.dense_mask.to(device);
+  const torch::Tensor children = dense.dense_children.to(device);
   // Table rows by row: pooling a child adds whole rows of these tables, in memory order.
-  const torch::Tensor is_candidate =
-      torch::zeros({num_distinct * num_rows}, projected.options().dtype(torch::kBool))
-          .index_fill_(0, position * num_rows + rows, true)
-          .view({num_distinct, num_rows});
-  const torch::Tensor child_of_distinct =
-      torch::empty({num_distinct}, groups.options()).index_copy_(0, position, groups);
   const torch::Tensor scores =
-      torch::matmul(GatherRows(point_rows, distinct, sparse_gradient), projected.t())
+      torch::matmul(GatherRows(point_rows, dense.dense_table_rows.to(device), sparse_gradient),
+                    projected.t())
           .masked_fill(is_candidate.logical_not(), -std::numeric_limits<float>::infinity());
   const torch::Tensor stable =
       std::get<0>(scores.detach().max(0, /*keepdim=*/true)).clamp_min(-1e30);
   const torch::Tensor sums = torch::zeros({branching, num_rows}, projected.options())
-                                 .index_add(0, child_of_distinct, (scores - stable).exp());
+                                 .index_add(0, children, (scores - stable).exp());
   const torch::Tensor has_candidates =
       torch::zeros({branching, num_rows}, projected.options())
-          .index_add(0, child_of_distinct, is_candidate.to(projected.scalar_type()))
+          .index_add(0, children, is_candidate.to(projected.scalar_type()))
           .gt(0);
   return (sums.clamp_min(1e-30).log() + stable)
       .masked_fill(has_candidates.logical_not(), -std::numeric_limits<float>::infinity())
       .t();
 }
 
+// The dense form straight from the spans, without the flat lists: the rows of one image under one
+// parent share their candidates (all of a batch's rows at the coarsest level share the root), so
+// each such list is marked once and every row takes its list's column.
+FlatCandidates DenseCandidates(const PointCandidates& candidates,
+                               const std::vector<CandidateSpan>& spans,
+                               const std::vector<int64_t>& list_of_row, int level) {
+  const int64_t table_rows = static_cast<int64_t>(candidates.NumRows());
+  std::vector<int64_t> position(table_rows, -1), distinct, children;
+  for (const CandidateSpan& span : spans) {
+    for (size_t i = 0; i < span.size; ++i) {
+      if (position[span[i]] >= 0) continue;
+      position[span[i]] = static_cast<int64_t>(distinct.size());
+      distinct.push_back(span[i]);
+      children.push_back(candidates.LabelOfRow(span[i], level));
+    }
+  }
+  const int64_t num_distinct = static_cast<int64_t>(distinct.size());
+  const int64_t num_lists = static_cast<int64_t>(spans.size());
+  // One more list, empty, for the rows without candidates.
+  torch::Tensor list_masks = torch::zeros({num_lists + 1, num_distinct}, torch::kBool);
+  bool* mask = list_masks.data_ptr<bool>();
+  for (int64_t list = 0; list < num_lists; ++list) {
+    for (size_t i = 0; i < spans[list].size; ++i) {
+      mask[list * num_distinct + position[spans[list][i]]] = true;
+    }
+  }
+  std::vector<int64_t> lists(list_of_row);
+  for (int64_t& list : lists) list = list < 0 ? num_lists : list;
+  FlatCandidates dense;
+  dense.dense_table_rows = Int64Tensor(distinct);
+  dense.dense_children = Int64Tensor(children);
+  dense.dense_mask = list_masks.index_select(0, Int64Tensor(lists)).t().contiguous();
+  return dense;
+}
+
+// The flat lists of the spans: each row's candidates one after another.
+FlatCandidates FlatCandidatesOf(const PointCandidates& candidates,
+                                const std::vector<CandidateSpan>& spans,
+                                const std::vector<int64_t>& list_of_row, int level) {
+  std::vector<int64_t> ranks, rows, groups;
+  for (size_t row = 0; row < list_of_row.size(); ++row) {
+    if (list_of_row[row] < 0) continue;
+    const CandidateSpan& span = spans[list_of_row[row]];
+    rows.insert(rows.end(), span.size, static_cast<int64_t>(row));
+    // A span's table rows ascend and a point's rows are adjacent: its label is looked up once.
+    uint32_t end_of_point = 0;
+    int64_t group = 0;
+    for (size_t i = 0; i < span.size; ++i) {
+      if (i == 0 || span[i] >= end_of_point) {
+        end_of_point = candidates.FirstRowOfRank(candidates.RankOfRow(span[i]) + 1);
+        group = candidates.LabelOfRow(span[i], level);
+      }
+      ranks.push_back(span[i]);
+      groups.push_back(group);
+    }
+  }
+  return {Int64Tensor(ranks), Int64Tensor(rows), Int64Tensor(groups), {}, {}, {}};
+}
+
 }  // namespace
+
+FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* slots,
+                                const int64_t* parent_nodes, int64_t begin, int64_t end, int level,
+                                bool allow_dense) {
+  // Each distinct (slot, parent) is a list of candidates, looked up once.
+  std::unordered_map<uint64_t, int64_t> list_of_key;
+  std::vector<CandidateSpan> spans;
+  std::vector<int64_t> list_of_row(end - begin, -1);
+  int64_t num_candidates = 0;
+  for (int64_t r = begin; r < end; ++r) {
+    if (parent_nodes[r] < 0) continue;
+    const uint64_t key =
+        (static_cast<uint64_t>(slots[r] + 1) << 32) | static_cast<uint32_t>(parent_nodes[r]);
+    const auto [it, inserted] = list_of_key.emplace(key, static_cast<int64_t>(spans.size()));
+    if (inserted) {
+      spans.push_back(candidates.Under(slots[r], static_cast<uint32_t>(parent_nodes[r])));
+    }
+    list_of_row[r - begin] = it->second;
+    num_candidates += static_cast<int64_t>(spans[it->second].size);
+  }
+  if (allow_dense &&
+      IsDense(end - begin, static_cast<int64_t>(candidates.NumRows()), num_candidates)) {
+    return DenseCandidates(candidates, spans, list_of_row, level);
+  }
+  return FlatCandidatesOf(candidates, spans, list_of_row, level);
+}
 
 torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Tensor& point_rows,
                                 const FlatCandidates& candidates, int64_t branching,
                                 Pooling pooling, bool sparse_gradient) {
   const torch::Device device = projected.device();
   const int64_t num_rows = projected.size(0);
-  const torch::Tensor rows = candidates.rows.to(device);
-  const torch::Tensor ranks = candidates.ranks.to(device);
   torch::Tensor logits;
-  if (pooling == Pooling::kLogSumExp && IsDense(num_rows, point_rows.size(0), ranks.size(0))) {
-    logits = DenseLogSumExp(projected, point_rows, ranks, rows, candidates.groups.to(device),
-                            branching, sparse_gradient);
+  if (candidates.dense_mask.defined()) {
+    if (pooling != Pooling::kLogSumExp) {
+      throw std::logic_error("PooledPointLogits: dense candidates pool by log-sum-exp only");
+    }
+    logits = DenseLogSumExp(projected, point_rows, candidates, branching, sparse_gradient);
+  } else if (pooling == Pooling::kLogSumExp &&
+             IsDense(num_rows, point_rows.size(0), candidates.ranks.size(0))) {
+    FlatCandidates dense = candidates;
+    MakeDense(dense, num_rows, point_rows.size(0));
+    logits = DenseLogSumExp(projected, point_rows, dense, branching, sparse_gradient);
   } else {
-    logits = SparsePooling(projected, point_rows, ranks, rows, candidates.groups.to(device),
-                           branching, pooling, sparse_gradient);
+    logits = SparsePooling(projected, point_rows, candidates.ranks.to(device),
+                           candidates.rows.to(device), candidates.groups.to(device), branching,
+                           pooling, sparse_gradient);
   }
   if (candidates.true_ranks.defined()) {
     const torch::Tensor true_scores =

@@ -154,6 +154,47 @@ TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
   EXPECT_NEAR(trained[2][2].item<float>(), score(2, 3), 1e-5);
 }
 
+// Training gathers the candidates of rows that share them (a small map) in a dense form, without
+// the flat lists: it pools as the flat lists do, logits and gradients, for rows of several images,
+// of no image, under several parents and without any candidate.
+TEST(PooledPointLogitsTest, TheDenseFormPoolsAsTheFlatLists) {
+  const RandomMap map = MakeRandomMap(5);
+  const NetworkShape shape = testing_support::WithPrototypeRows(map.shape);
+  const std::vector<uint32_t> images = {3, 0, 9};  // 9: no image, every point
+  const PointCandidates candidates(map.tree, &map.visibility, images, &shape.point_row_offsets);
+  const int no_image = candidates.SlotOf(2);
+  const std::vector<int> slots = {
+      no_image, candidates.SlotOf(0), no_image, candidates.SlotOf(1), no_image, no_image};
+  const uint32_t first_child = map.tree.NodeOfLabels(map.tree.LabelsOfPoint(0), 1);
+  const std::vector<int64_t> parents = {0, 0, 0, first_child, first_child, -1};
+  const int64_t rows = static_cast<int64_t>(slots.size());
+  const FlatCandidates flat =
+      GatherCandidates(candidates, slots.data(), parents.data(), 0, rows, 0);
+  const FlatCandidates dense =
+      GatherCandidates(candidates, slots.data(), parents.data(), 0, rows, 0, /*allow_dense=*/true);
+  ASSERT_TRUE(flat.ranks.defined() && !flat.dense_mask.defined());
+  ASSERT_TRUE(dense.dense_mask.defined() && !dense.ranks.defined());
+  torch::manual_seed(9);
+  const torch::Tensor start_table = torch::randn({shape.point_row_offsets.back(), 4});
+  const torch::Tensor start_projected = torch::randn({rows, 4});
+  torch::Tensor logits[2], table[2], projected[2];
+  for (int pass = 0; pass < 2; ++pass) {
+    table[pass] = start_table.clone().requires_grad_(true);
+    projected[pass] = start_projected.clone().requires_grad_(true);
+    logits[pass] = PooledPointLogits(projected[pass], table[pass], pass == 0 ? flat : dense,
+                                     map.tree.branching(), Pooling::kLogSumExp);
+    logits[pass].logsumexp(1).sum().backward();
+  }
+  EXPECT_TRUE(torch::allclose(logits[0], logits[1], 1e-5, 1e-5));
+  EXPECT_TRUE(logits[1][rows - 1].eq(0).all().item<bool>()) << "a row without candidates";
+  EXPECT_TRUE(logits[1][3].isneginf().any().item<bool>()) << "a child the image does not see";
+  EXPECT_TRUE(torch::allclose(table[0].grad(), table[1].grad(), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(projected[0].grad(), projected[1].grad(), 1e-5, 1e-6));
+  EXPECT_THROW(
+      PooledPointLogits(start_projected, start_table, dense, map.tree.branching(), Pooling::kMax),
+      std::logic_error);
+}
+
 // Logits and gradients against the definition, computed one candidate at a time, for rows that
 // share all their candidates (a small map: pooled over the dense table of every row against every
 // table row) and rows that share none (pooled one gathered candidate at a time).

@@ -229,7 +229,8 @@ Batch MakeBatch(const BatchContext& context, SampleOrder& order, int64_t iterati
         slots[row] = context.point_candidates->SlotOf(drawn.source_images[row]);
       }
       candidates =
-          GatherCandidates(*context.point_candidates, slots.data(), node.data(), 0, size, level);
+          GatherCandidates(*context.point_candidates, slots.data(), node.data(), 0, size, level,
+                           /*allow_dense=*/true);
       std::vector<int64_t> true_ranks, true_rows;
       for (int64_t row = 0; row < size; ++row) {
         const auto [first, end] = context.point_candidates->RowsOfPoint(drawn.points[row]);
