@@ -170,7 +170,7 @@ TORCH_MODULE(HscNet);
 // CPU int64 tensors [T].
 struct FlatCandidates {
   // Candidate i: table row ranks[i] for row rows[i], under child groups[i] (its point's label at
-  // the level, the same wherever the table row appears).
+  // the level).
   torch::Tensor ranks, rows, groups;
   // Training only: the table rows of each row's observed point, true_ranks[i] of row
   // true_rows[i] ([T']; true_rows may be left undefined when there is one per row, in row

@@ -129,7 +129,7 @@ torch::Tensor SparsePooling(const torch::Tensor& projected, const torch::Tensor&
   return logits.view({num_rows, branching});
 }
 
-// Whether the dense form pools these candidates: on a small table (every row against every table
+// Whether GatherCandidates gives the dense form: on a small table (every row against every table
 // row stays under kMaxDenseCells) where the dense cells are at most kDenseCellsPerCandidate per
 // candidate. A dense cell costs a multiply-add per width in a matrix product and a few passes of
 // plain memory; a candidate of SparsePooling gathers a table row and goes through a chain of
@@ -137,24 +137,6 @@ torch::Tensor SparsePooling(const torch::Tensor& projected, const torch::Tensor&
 bool IsDense(int64_t num_rows, int64_t table_rows, int64_t num_candidates) {
   return num_candidates > 0 && num_rows * table_rows <= kMaxDenseCells &&
          num_rows * table_rows <= kDenseCellsPerCandidate * num_candidates;
-}
-
-// The dense form of flat candidates (FlatCandidates::dense_*), through a mark per table row.
-void MakeDense(FlatCandidates& flat, int64_t num_rows, int64_t table_rows) {
-  const torch::Tensor& ranks = flat.ranks;
-  const torch::Tensor seen =
-      torch::zeros({table_rows}, ranks.options().dtype(torch::kBool)).index_fill_(0, ranks, true);
-  flat.dense_table_rows = seen.nonzero().squeeze(1);
-  const int64_t num_distinct = flat.dense_table_rows.size(0);
-  const torch::Tensor position =
-      torch::empty({table_rows}, ranks.options())
-          .index_copy_(0, flat.dense_table_rows, torch::arange(num_distinct, ranks.options()))
-          .index_select(0, ranks);
-  flat.dense_children =
-      torch::empty({num_distinct}, flat.groups.options()).index_copy_(0, position, flat.groups);
-  flat.dense_mask = torch::zeros({num_distinct * num_rows}, ranks.options().dtype(torch::kBool))
-                        .index_fill_(0, position * num_rows + flat.rows, true)
-                        .view({num_distinct, num_rows});
 }
 
 // SparsePooling's log-sum-exp on the dense form: one matrix product scores every row against
@@ -285,11 +267,6 @@ torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Ten
       throw std::logic_error("PooledPointLogits: dense candidates pool by log-sum-exp only");
     }
     logits = DenseLogSumExp(projected, point_rows, candidates, branching, sparse_gradient);
-  } else if (pooling == Pooling::kLogSumExp &&
-             IsDense(num_rows, point_rows.size(0), candidates.ranks.size(0))) {
-    FlatCandidates dense = candidates;
-    MakeDense(dense, num_rows, point_rows.size(0));
-    logits = DenseLogSumExp(projected, point_rows, dense, branching, sparse_gradient);
   } else {
     logits = SparsePooling(projected, point_rows, candidates.ranks.to(device),
                            candidates.rows.to(device), candidates.groups.to(device), branching,
