@@ -103,6 +103,62 @@ TEST(NearestNeighborMatcher, RatioTestComparesOtherPointsNotOtherRowsOfOnePoint)
               ElementsAre(7));
 }
 
+// The definition in double precision: each query's best row, kept where the best row of every
+// other point is far enough behind and, with `mutual`, where no earlier query is as similar to that
+// row and no query more similar.
+CandidateMatches MatchByDefinition(const DescriptorMatrix& query, const DescriptorMatrix& rows,
+                                   const std::vector<uint32_t>& row_points,
+                                   const NearestNeighborOptions& options) {
+  const Eigen::MatrixXd similarity = query.cast<double>() * rows.cast<double>().transpose();
+  CandidateMatches matches;
+  for (int64_t q = 0; q < similarity.rows(); ++q) {
+    Eigen::Index best_row = 0;
+    similarity.row(q).maxCoeff(&best_row);
+    double second = -2;
+    for (int64_t j = 0; j < rows.rows(); ++j) {
+      if (row_points[j] != row_points[best_row]) second = std::max(second, similarity(q, j));
+    }
+    const double best_distance = 2 - 2 * similarity(q, best_row);
+    if (second > -2 && best_distance >= options.ratio * options.ratio * (2 - 2 * second)) continue;
+    Eigen::Index best_query = 0;
+    similarity.col(best_row).maxCoeff(&best_query);
+    if (options.mutual && best_query != q) continue;
+    matches.keypoints.push_back(static_cast<int>(q));
+    matches.point_indices.push_back(row_points[best_row]);
+  }
+  return matches;
+}
+
+// Enough queries and rows that the similarities are computed in several blocks of queries: the
+// matches are the definition's, with and without each filter.
+TEST(NearestNeighborMatcher, ManyQueriesMatchAsTheDefinitionSays) {
+  const int num_rows = 2000;
+  const DescriptorMatrix rows = RandomUnitRows(num_rows, 32, 11);
+  std::vector<uint32_t> row_points(num_rows);
+  for (int j = 0; j < num_rows; ++j) row_points[j] = static_cast<uint32_t>(j / 2);
+  Random random(12);
+  const DescriptorMatrix noise = RandomUnitRows(700, 32, 13);
+  DescriptorMatrix query(700, 32);
+  for (int q = 0; q < query.rows(); ++q) {
+    const float noise_level = q % 3 == 0 ? 2.0f : 0.4f;
+    query.row(q) =
+        rows.row(static_cast<int64_t>(random.UniformInt(num_rows))) + noise_level * noise.row(q);
+  }
+  query = UnitRows(query);
+  for (const NearestNeighborOptions options :
+       {NearestNeighborOptions{.ratio = 0.9, .mutual = true},
+        NearestNeighborOptions{.ratio = 0.8, .mutual = false},
+        NearestNeighborOptions{.ratio = 1.0, .mutual = true}}) {
+    const CandidateMatches expected = MatchByDefinition(query, rows, row_points, options);
+    const CandidateMatches matches = MatchNearestRows(query, rows, row_points.data(), options);
+    EXPECT_EQ(matches.keypoints, expected.keypoints) << options.ratio << " " << options.mutual;
+    EXPECT_EQ(matches.point_indices, expected.point_indices);
+    // Neither filter may be idle on this data, or the comparison would not test it.
+    EXPECT_GT(expected.size(), 100u);
+    EXPECT_LT(expected.size(), 650u);
+  }
+}
+
 TEST(NearestNeighborMatcher, EmptySceneAndBadImageIndex) {
   EXPECT_TRUE(NearestNeighborMatcher(Scene()).empty());
   const NearestNeighborMatcher matcher(TwoImageScene(RandomUnitRows(6, 8, 4)));

@@ -1,5 +1,6 @@
 // The dense fp32 kernels of the network's CPU inference: matrix products, the FiLM modulation with
-// its ELU, and row softmax, on raw row-major arrays.
+// its ELU, and row softmax, on raw row-major arrays. The matrix product also computes the
+// similarities of nearest-neighbour matching (localization/nearest_neighbor_matcher.h).
 //
 // They are compiled for the build machine's instruction set (CMake HSCLOC_KERNEL_ARCH, "native" by
 // default: AVX-512 where the CPU has it), while the rest of hscloc keeps the distribution's
