@@ -104,6 +104,9 @@ class Trainer {
   // After the loop: the last log entry, check and checkpoint, and the network to return.
   TrainingResult Finish();
   bool RestoreBestNetwork();
+  bool MeasurablyBelowBest(double accuracy) const;
+  // TrainerOptions::patience: the best check long enough behind, every later one measurably below.
+  bool OutOfPatience();
   TrainingResult Result(bool restored_best);
   bool Converged() const;
   double Elapsed() const { return state_.seconds_before + timer_.ElapsedSeconds(); }
@@ -138,6 +141,7 @@ class Trainer {
   int64_t iterations_in_sums_ = 0;
   double learning_rate_ = 0;  // the last step's
   std::string check_status_;  // the last check's, shown after the loss
+  bool stopped_early_ = false;
 };
 
 Trainer::Trainer(const Scene& scene, const LabelTree& tree, const TrainerOptions& options,
@@ -244,7 +248,7 @@ TrainingResult Trainer::Run() {
   // The descriptor shortcut starts as the nearest-class-mean matcher: a check before the first
   // step lets early stopping keep it where training would only lose held-out accuracy.
   if (network_options_.descriptor_shortcut && state_.iteration == 0) CheckHeldOut();
-  while (!budget_.Spent(state_.iteration, Elapsed()) && !StopRequested()) {
+  while (!budget_.Spent(state_.iteration, Elapsed()) && !StopRequested() && !OutOfPatience()) {
     Step();
     progress_->Advance();
     if (state_.iteration % options_.log_every_iterations == 0) FlushLog(state_.iteration);
@@ -407,17 +411,35 @@ TrainingResult Trainer::Finish() {
   return Result(restored_best);
 }
 
-// Early stopping: the best held-out network, where a later one was worse.
-bool Trainer::RestoreBestNetwork() {
-  if (!options_.keep_best || state_.best_parameters.empty() || state_.checks.empty()) return false;
-  // Only a drop the check can tell from sampling noise brings the best network back: on a
-  // saturated curve (pooled point rows on the city, 99.1 to 99.3 % from the first check on) the
-  // first check would otherwise win by a tenth of a point, and with it a network that had seen a
-  // tenth of the noisy descriptors the later ones had.
+// Only a drop the check can tell from sampling noise counts: on a saturated curve (pooled point
+// rows on the city, 99.1 to 99.3 % from the first check on) the first check would otherwise win by
+// a tenth of a point, and with it a network that had seen a tenth of the noisy descriptors the
+// later ones had.
+bool Trainer::MeasurablyBelowBest(double accuracy) const {
   const double best = state_.best_accuracy;
   const double standard_error =
       std::sqrt(best * (1 - best) / static_cast<double>(std::max<size_t>(1, check_sample_.size())));
-  const bool restore = state_.checks.back().point_accuracy < best - 2 * standard_error;
+  return accuracy < best - 2 * standard_error;
+}
+
+bool Trainer::OutOfPatience() {
+  if (!options_.keep_best || options_.patience <= 0 || state_.best_parameters.empty()) return false;
+  const auto best = std::find_if(
+      state_.checks.begin(), state_.checks.end(),
+      [&](const HeldOutCheck& check) { return check.iteration == state_.best_iteration; });
+  if (best == state_.checks.end() || best + 1 == state_.checks.end()) return false;
+  const double waited = Progress() - budget_.Progress(best->iteration, best->seconds);
+  const bool all_below = std::all_of(best + 1, state_.checks.end(), [&](const HeldOutCheck& check) {
+    return MeasurablyBelowBest(check.point_accuracy);
+  });
+  stopped_early_ = waited >= options_.patience && all_below;
+  return stopped_early_;
+}
+
+// Early stopping: the best held-out network, where a later one was worse.
+bool Trainer::RestoreBestNetwork() {
+  if (!options_.keep_best || state_.best_parameters.empty() || state_.checks.empty()) return false;
+  const bool restore = MeasurablyBelowBest(state_.checks.back().point_accuracy);
   if (restore) {
     torch::NoGradGuard no_grad;
     const std::vector<torch::Tensor> parameters = module_->parameters();
@@ -448,6 +470,7 @@ TrainingResult Trainer::Result(bool restored_best) {
     result.converged = Converged();
   }
   result.interrupted = StopRequested() && !budget_.Spent(state_.iteration, state_.seconds_before);
+  result.stopped_early = stopped_early_;
   return result;
 }
 
@@ -499,6 +522,8 @@ void TrainerOptions::Check() const {
   THROW_CHECK_MSG(final_rate_fraction > 0 && final_rate_fraction <= 1,
                   "TrainerOptions.final_rate_fraction = {}", final_rate_fraction);
   THROW_CHECK_MSG(evaluations >= 0, "TrainerOptions.evaluations = {}", evaluations);
+  THROW_CHECK_MSG(patience >= 0 && patience <= 1, "TrainerOptions.patience = {} (0 .. 1)",
+                  patience);
   THROW_CHECK_MSG(evaluation_observations > 0, "TrainerOptions.evaluation_observations = {}",
                   evaluation_observations);
   THROW_CHECK_MSG(batch_size > 0, "TrainerOptions.batch_size = {}", batch_size);

@@ -471,6 +471,45 @@ TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {
   EXPECT_DOUBLE_EQ(last_evaluation.leaf_accuracy, last.held_out_checks.back().point_accuracy);
 }
 
+// A rate that wrecks the class means the shortcut starts as: every check after the start falls
+// far below it, so training ends once the start is a quarter of the budget behind, with the
+// start's network; without patience the whole budget is spent.
+TEST_F(TinyCityTrainerTest, EndsOnceTheBestCheckIsThePatienceBehind) {
+  TrainerOptions options = ShortcutOptions(120, Map().scene);
+  options.learning_rate = 0.3;
+  options.schedule = LearningRateSchedule::kHalving;
+  options.halving_fractions = {};
+  options.evaluations = 12;
+  options.evaluation_observations = 1 << 20;  // every held-out observation
+  ASSERT_DOUBLE_EQ(options.patience, 0.25);
+  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
+  EXPECT_TRUE(result.stopped_early);
+  EXPECT_EQ(result.best_iteration, 0);
+  // Checks every 10 iterations: the first at or past 30 ends it.
+  EXPECT_EQ(result.iterations, 30);
+  ASSERT_EQ(result.held_out_checks.size(), 4u);
+  const NetworkEvaluation evaluation = EvaluateNetwork(
+      result.network, Map().scene, Map().tree,
+      HeldOutObservations(Map().scene, options.holdout_fraction, 0), &Map().visibility);
+  EXPECT_DOUBLE_EQ(evaluation.leaf_accuracy, result.held_out_checks.front().point_accuracy);
+
+  options.patience = 0;
+  const TrainingResult whole = TrainNetwork(Map().scene, Map().tree, options);
+  EXPECT_FALSE(whole.stopped_early);
+  EXPECT_EQ(whole.iterations, 120);
+  EXPECT_EQ(whole.best_iteration, 0);
+}
+
+// A check within two standard errors of the best is no reason to stop: sampling noise.
+TEST_F(TinyCityTrainerTest, PatienceWaitsOutChecksWithinNoiseOfTheBest) {
+  TrainerOptions options = ShortcutOptions(60, Map().scene);
+  options.learning_rate = 1e-6;  // the network stays the class means
+  options.evaluations = 6;
+  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
+  EXPECT_FALSE(result.stopped_early);
+  EXPECT_EQ(result.iterations, 60);
+}
+
 TEST_F(TinyCityTrainerTest, EpochBudgetCountsPassesOverTheTrainingObservations) {
   TrainerOptions options = QuickOptions(0);
   options.epochs = 2;

@@ -203,6 +203,19 @@ int RunTrain(TrainArguments& arguments) {
     std::cout << fmt::format(" {:.2f}", 100 * accuracy);
   }
   std::cout << " %\n";
+  if (result.stopped_early) {
+    std::cout << fmt::format(
+        "stopped after {} iterations: the held-out checks since iteration {} fell measurably "
+        "below it for {:.0f} % of the budget (--patience)\n",
+        result.iterations, result.best_iteration, 100 * options.patience);
+  }
+  if (!result.held_out_checks.empty()) {
+    std::cout << "held-out checks (iteration: masked point accuracy):";
+    for (const HeldOutCheck& check : result.held_out_checks) {
+      std::cout << fmt::format(" {}: {:.1f} %", check.iteration, 100 * check.point_accuracy);
+    }
+    std::cout << "\n";
+  }
   if (result.best_held_out_accuracy >= 0) {
     std::cout << fmt::format(
         "held-out point accuracy (masked, {} checks) {:.2f} % at iteration {}{}; {}\n",
@@ -291,6 +304,12 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
       ->capture_default_str();
   command->add_flag("--no-keep-best", arguments->no_keep_best,
                     "Return the last network rather than the best held-out one");
+  command
+      ->add_option("--patience", options.patience,
+                   "End training once the best held-out check is this fraction of the budget "
+                   "behind and every later check measurably below it (0: spend the budget)")
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
   command->add_option("--device", arguments->device, "cpu or cuda")
       ->check(CLI::IsMember({"cpu", "cuda"}))
       ->capture_default_str();
