@@ -588,7 +588,7 @@ TrainingResult TrainNetwork(const Scene& scene, const LabelTree& tree,
   }
   if (training.empty()) ThrowInvalidArgument("train: the scene has no training observations");
   SetComputeThreads(options.num_threads);
-  KeepFreedMemoryForReuse();
+  KeepLargeFreedMemoryForReuse();
   Trainer trainer(scene, tree, options, std::move(training));
   return trainer.Run();
 }

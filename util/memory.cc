@@ -10,4 +10,9 @@ void KeepFreedMemoryForReuse() {
   mallopt(M_TOP_PAD, 64 << 20);
 }
 
+void KeepLargeFreedMemoryForReuse() {
+  KeepFreedMemoryForReuse();
+  mallopt(M_MMAP_MAX, 0);
+}
+
 }  // namespace hscloc

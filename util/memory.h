@@ -15,6 +15,13 @@ namespace hscloc {
 // query's network; docs/decisions.md). Idempotent; affects the whole process.
 void KeepFreedMemoryForReuse();
 
+// KeepFreedMemoryForReuse, and no block mapped apart, whatever its size: every block comes from
+// the heap and goes back to it. A training step on a small map with a row per view allocates and
+// frees score tables of 50 to 60 MB, past the largest threshold glibc allows, and faulted every
+// page of each in anew (fountain-P11 SIFT: 2.9 times the time per step; docs/decisions.md). For
+// batch work such as training: the process keeps up to a gigabyte of freed heap.
+void KeepLargeFreedMemoryForReuse();
+
 // An allocator whose default construction leaves a trivial value as it finds it: `resize` on a
 // buffer that is written in full next does not zero it first. The network's per-query
 // activations are such buffers, several megabytes a level.

@@ -41,6 +41,17 @@ TEST(MemoryTest, AFreedBlockIsReusedWithoutFaultingItsPagesInAgain) {
   EXPECT_LT(third, 64) << "first use " << first << " faults";
 }
 
+TEST(MemoryTest, AFreedBlockPastMmapsLargestThresholdIsReusedToo) {
+  KeepLargeFreedMemoryForReuse();
+  constexpr size_t kBytes = 64 << 20;  // twice glibc's largest mmap threshold
+  const long first = FaultsOfOneUse(kBytes);
+  const long second = FaultsOfOneUse(kBytes);
+  const long third = FaultsOfOneUse(kBytes);
+  EXPECT_GT(first, 0);
+  EXPECT_LT(second, 64) << "first use " << first << " faults";
+  EXPECT_LT(third, 64) << "first use " << first << " faults";
+}
+
 // Values given are kept; growing keeps what was there; only the new tail is left unset.
 TEST(MemoryTest, UninitializedVectorKeepsEveryValueItIsGiven) {
   UninitializedVector<float> values(1000, 2.5f);
