@@ -383,8 +383,10 @@ std::map<Matcher, RealSetCounts> LocalizeRealSet(
   TrainerOptions training;
   training.max_iterations = iterations;
   training.holdout_fraction = 0;
-  const TrainedRealMap trained =
-      BuildAndTrainRealMap(data / "map", data / "database.db", temp / "map", training);
+  // One row per point, as a map of 10,000 points or more gets; the real-data XFeat tests
+  // (tests/xfeat_real_data_test.cc) train what `hscloc train` chooses for these maps.
+  const TrainedRealMap trained = BuildAndTrainRealMap(
+      data / "map", data / "database.db", temp / "map", training, /*point_prototypes=*/1);
   const Localizer localizer(trained.map, trained.network);
   const auto features = OpenColmapDatabaseFeatures(data / "database.db");
   const QuerySet set =

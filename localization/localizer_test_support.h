@@ -11,6 +11,7 @@
 #include <iostream>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -72,8 +73,9 @@ inline RunSummary LocalizeAll(const Localizer& localizer, const LocalizerOptions
   return summary;
 }
 
-// A real set's map: built from a COLMAP model and its features, and trained with the widths
-// `hscloc train` chooses for it; `training` gives the budget and the held-out fraction.
+// A real set's map: built from a COLMAP model and its features, and trained with the widths and
+// the rows per point `hscloc train` chooses for it, or `point_prototypes` rows per point where
+// given; `training` gives the budget and the held-out fraction.
 struct TrainedRealMap {
   std::shared_ptr<const LocalizationMap> map;
   std::shared_ptr<const Network> network;
@@ -85,7 +87,8 @@ struct TrainedRealMap {
 inline TrainedRealMap BuildAndTrainRealMap(const std::filesystem::path& model,
                                            const std::filesystem::path& features,
                                            const std::filesystem::path& bundle,
-                                           TrainerOptions training) {
+                                           TrainerOptions training,
+                                           std::optional<int> point_prototypes = std::nullopt) {
   MapBuildOptions build_options;
   build_options.show_progress = false;
   build_options.label_tree.show_progress = false;
@@ -94,6 +97,7 @@ inline TrainedRealMap BuildAndTrainRealMap(const std::filesystem::path& model,
   trained.map = LocalizationMap::Load(bundle, {.load_observations = true});
   training.network = DefaultNetworkOptions(trained.map->scene().NumPoints(),
                                            static_cast<int>(trained.map->scene().Dimension()));
+  training.point_prototypes = point_prototypes.value_or(DefaultPointPrototypes(training.network));
   training.show_progress = false;
   TrainingResult result = TrainNetwork(trained.map->scene(), trained.map->label_tree(), training);
   trained.network = std::make_shared<const Network>(std::move(result.network));

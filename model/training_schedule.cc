@@ -70,6 +70,10 @@ NetworkOptions DefaultNetworkOptions(size_t num_points, int descriptor_dim) {
   return options;
 }
 
+int DefaultPointPrototypes(const NetworkOptions& network) {
+  return network.descriptor_shortcut ? kMaxPointPrototypes : 1;
+}
+
 bool DefaultNodeConditioning(const NetworkOptions& options) {
   // Pooled point rows score a child through its own points, which already tell parents apart;
   // a node table beside them is most of a large network's bytes (two thirds on the aachen

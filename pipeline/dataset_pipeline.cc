@@ -222,6 +222,7 @@ std::string Train(const fs::path& map_dir, const fs::path& checkpoint,
   TrainerOptions training;
   training.network =
       DefaultNetworkOptions(map->scene().NumPoints(), static_cast<int>(map->scene().Dimension()));
+  training.point_prototypes = DefaultPointPrototypes(training.network);
   training.max_iterations = options.max_iterations;
   training.max_minutes = options.max_minutes;
   training.seed = options.seed;

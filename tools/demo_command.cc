@@ -204,6 +204,7 @@ void TrainDemoNetwork(const DemoArguments& arguments, const fs::path& bundle) {
   // The widths `hscloc train` chooses for this map.
   train_options.network =
       DefaultNetworkOptions(map->scene().NumPoints(), static_cast<int>(map->scene().Dimension()));
+  train_options.point_prototypes = DefaultPointPrototypes(train_options.network);
   train_options.max_iterations = arguments.iterations;
   train_options.max_minutes = arguments.minutes;
   train_options.holdout_fraction = arguments.real ? 0 : 0.05;

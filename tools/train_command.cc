@@ -36,6 +36,7 @@ struct TrainArguments {
   bool node_output_dim_given = false;
   bool channels_given = false;
   bool trunk_channels_given = false;
+  bool point_prototypes_given = false;
   std::string output;  // shared, node, pooled, shortcut; empty: from the map's size
   std::string trunk;   // shared, per-level; empty: from the map's size
   TrainerOptions options;
@@ -157,6 +158,9 @@ int RunTrain(TrainArguments& arguments) {
   if (!arguments.paper) {
     ChooseOutputLayers(arguments.output, defaults, descriptor_dim, arguments.node_output_dim_given,
                        options.network);
+  }
+  if (!arguments.point_prototypes_given && options.network.pooled_point_rows) {
+    options.point_prototypes = DefaultPointPrototypes(options.network);
   }
   if (!arguments.conditioning.empty()) {
     options.network.node_conditioning = arguments.conditioning == "nodes";
@@ -368,11 +372,13 @@ void AddTrainCommand(CLI::App& app, CommandRunner& run) {
       ->capture_default_str();
   command
       ->add_option("--point-prototypes", options.point_prototypes,
-                   "Pooled point rows: rows per point at most, each started from the point's own "
-                   "training views; with more than one, the final pose matches them as nearest "
-                   "neighbours (64 on a small map: a row per view)")
+                   fmt::format("Pooled point rows: rows per point at most, each started from "
+                               "the point's own training views; with more than one, the final "
+                               "pose matches them as nearest neighbours (default from the map: "
+                               "{}, a row per view, below {} points; else 1)",
+                               kMaxPointPrototypes, kMinPointsForNodeOutputRows))
       ->check(CLI::Range(1, kMaxPointPrototypes))
-      ->capture_default_str();
+      ->each([arguments](const std::string&) { arguments->point_prototypes_given = true; });
   command
       ->add_option("--holdout", options.holdout_fraction,
                    "Fraction of observations held out from training")
