@@ -29,27 +29,25 @@ long FaultsOfOneUse(size_t bytes) {
   return MinorFaults() - before;
 }
 
-TEST(MemoryTest, AFreedBlockIsReusedWithoutFaultingItsPagesInAgain) {
-  KeepFreedMemoryForReuse();
-  constexpr size_t kBytes = 8 << 20;  // 2,048 pages of 4 KiB
-  const long first = FaultsOfOneUse(kBytes);
-  const long second = FaultsOfOneUse(kBytes);
-  const long third = FaultsOfOneUse(kBytes);
-  // The first use may fault every page in (huge pages: fewer); the later ones find them resident.
+// Three uses of a block of `bytes`: the first may fault every page in (huge pages: fewer); the
+// later ones find them resident.
+void ExpectReusedWithoutFaults(size_t bytes) {
+  const long first = FaultsOfOneUse(bytes);
+  const long second = FaultsOfOneUse(bytes);
+  const long third = FaultsOfOneUse(bytes);
   EXPECT_GT(first, 0);
   EXPECT_LT(second, 64) << "first use " << first << " faults";
   EXPECT_LT(third, 64) << "first use " << first << " faults";
 }
 
+TEST(MemoryTest, AFreedBlockIsReusedWithoutFaultingItsPagesInAgain) {
+  KeepFreedMemoryForReuse();
+  ExpectReusedWithoutFaults(8 << 20);  // 2,048 pages of 4 KiB
+}
+
 TEST(MemoryTest, AFreedBlockPastMmapsLargestThresholdIsReusedToo) {
   KeepLargeFreedMemoryForReuse();
-  constexpr size_t kBytes = 64 << 20;  // twice glibc's largest mmap threshold
-  const long first = FaultsOfOneUse(kBytes);
-  const long second = FaultsOfOneUse(kBytes);
-  const long third = FaultsOfOneUse(kBytes);
-  EXPECT_GT(first, 0);
-  EXPECT_LT(second, 64) << "first use " << first << " faults";
-  EXPECT_LT(third, 64) << "first use " << first << " faults";
+  ExpectReusedWithoutFaults(64 << 20);  // twice glibc's largest mmap threshold
 }
 
 // Values given are kept; growing keeps what was there; only the new tail is left unset.
