@@ -16,6 +16,7 @@
 #include "model/network_test_support.h"
 #include "model/point_candidates.h"
 #include "model/point_prototypes.h"
+#include "model/trainer_test_support.h"
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
 #include "scene/scene_io.h"
@@ -27,88 +28,12 @@ namespace hscloc {
 namespace {
 
 namespace fs = std::filesystem;
-
-// A synthetic city on disk and the map parts the trainer needs, built as `hscloc build-map` does.
-struct CityMap {
-  std::unique_ptr<SyntheticCity> city;
-  fs::path dir;
-  Scene scene;
-  LabelTree tree;
-  Visibility visibility;
-};
-
-std::unique_ptr<CityMap> MakeCityMap(const std::string& preset, const fs::path& dir) {
-  auto map = std::make_unique<CityMap>();
-  map->city = std::make_unique<SyntheticCity>(SyntheticCityOptions::Preset(preset));
-  map->dir = dir;
-  SyntheticCityWriteOptions write_options;
-  write_options.show_progress = false;
-  WriteSyntheticCity(*map->city, dir, write_options);
-  const Reconstruction reconstruction = ReadColmapModel(dir / "map");
-  const auto features = OpenH5Features(dir / "features.h5");
-  map->scene =
-      Scene::FromReconstruction(reconstruction, JoinObservations(reconstruction, *features));
-  LabelTreeOptions tree_options;
-  tree_options.show_progress = false;
-  map->tree = LabelTree::Build(map->scene.points, tree_options);
-  map->visibility = Visibility::FromObservations(map->scene.NumImages(), map->scene.NumPoints(),
-                                                 map->scene.observation_image_indices,
-                                                 map->scene.observation_point_indices);
-  return map;
-}
-
-TrainerOptions QuickOptions(int64_t iterations) {
-  TrainerOptions options;
-  options.network.channels = 128;
-  options.network.embedding_dim = 64;
-  options.max_iterations = iterations;
-  options.batch_size = 256;
-  options.image_dropout = 0;
-  options.show_progress = false;
-  options.log_every_iterations = 10;
-  return options;
-}
-
-// The small maps' network: pooled point rows at the descriptor's width with the shortcut.
-TrainerOptions ShortcutOptions(int64_t iterations, const Scene& scene) {
-  TrainerOptions options = QuickOptions(iterations);
-  options.network.node_conditioning = false;
-  options.network.node_output_dim = static_cast<int>(scene.Dimension());
-  options.network.pooled_point_rows = true;
-  options.network.descriptor_shortcut = true;
-  return options;
-}
-
-std::vector<uint32_t> TrainingObservations(const Scene& scene, const TrainerOptions& options) {
-  std::vector<uint32_t> training;
-  for (uint32_t i = 0; i < scene.NumObservations(); ++i) {
-    if (!IsHeldOutObservation(i, options.holdout_fraction, options.holdout_seed)) {
-      training.push_back(i);
-    }
-  }
-  return training;
-}
-
-class TinyCityTrainerTest : public ::testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    temp_ = new testing::TempDir();
-    map_ = MakeCityMap("tiny", temp_->path() / "tiny").release();
-  }
-  static void TearDownTestSuite() {
-    delete map_;
-    delete temp_;
-  }
-  static const CityMap& Map() { return *map_; }
-
-  testing::TempDir temp_dir_;
-
- private:
-  static testing::TempDir* temp_;
-  static CityMap* map_;
-};
-testing::TempDir* TinyCityTrainerTest::temp_ = nullptr;
-CityMap* TinyCityTrainerTest::map_ = nullptr;
+using trainer_testing::CityMap;
+using trainer_testing::MakeCityMap;
+using trainer_testing::QuickOptions;
+using trainer_testing::ShortcutOptions;
+using trainer_testing::TinyCityTrainerTest;
+using trainer_testing::TrainingObservations;
 
 TEST(TrainerOptionsTest, ChecksNameTheField) {
   TrainerOptions options;
@@ -164,15 +89,6 @@ TEST(TrainerOptionsTest, ChecksNameTheField) {
 
 // Converged unless the last quarter of the budget gained 5 % or more over every earlier check; a
 // start that later checks only fall below is converged, not "still improving".
-TEST(TrainerTest, ConvergenceLooksAtWhatTheLastQuarterGained) {
-  EXPECT_FALSE(HeldOutConverged({0.5, 0.6, 0.8}, {0.1, 0.5, 0.9}));
-  EXPECT_TRUE(HeldOutConverged({0.5, 0.79, 0.8}, {0.1, 0.5, 0.9}));
-  EXPECT_TRUE(HeldOutConverged({0.98, 0.90, 0.91}, {0.0, 0.5, 0.9}));
-  EXPECT_TRUE(HeldOutConverged({0.5, 0.8}, {0.1, 0.75}));  // nothing in the last quarter
-  EXPECT_FALSE(HeldOutConverged({0.5, 0.8}, {0.1, 0.76}));
-  EXPECT_FALSE(HeldOutConverged({0.8}, {1.0}));
-}
-
 TEST(TrainerTest, HeldOutSplitIsDeterministicAndNearTheFraction) {
   size_t held_out = 0;
   for (uint64_t i = 0; i < 100000; ++i) {
@@ -414,100 +330,6 @@ TEST_F(TinyCityTrainerTest, SharedTrunkLearnsFromEveryLevel) {
   std::cout << fmt::format("tiny city, shared trunk: masked training leaf accuracy {:.4f}\n",
                            training.leaf_accuracy);
   EXPECT_GE(training.leaf_accuracy, 0.99);
-}
-
-TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {
-  // A rate too high for a constant schedule makes the held-out accuracy rise, then fall (0.23 at
-  // iteration 40, 0.13 at 60, far more than two standard errors): the returned network is the
-  // best checked one, and it scores what that check scored.
-  TrainerOptions options = QuickOptions(60);
-  options.learning_rate = 0.03;
-  options.schedule = LearningRateSchedule::kHalving;
-  options.halving_fractions = {};
-  options.evaluations = 6;
-  options.evaluation_observations = 1 << 20;  // every held-out observation
-  options.snapshot_dir = temp_dir_ / "snapshots";
-  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
-  ASSERT_EQ(result.held_out_checks.size(), 6u);
-  double best = 0;
-  int64_t best_iteration = 0;
-  for (const HeldOutCheck& check : result.held_out_checks) {
-    if (check.point_accuracy > best) {
-      best = check.point_accuracy;
-      best_iteration = check.iteration;
-    }
-  }
-  EXPECT_EQ(result.best_held_out_accuracy, best);
-  EXPECT_EQ(result.best_iteration, best_iteration);
-  const NetworkEvaluation evaluation = EvaluateNetwork(
-      result.network, Map().scene, Map().tree,
-      HeldOutObservations(Map().scene, options.holdout_fraction, 0), &Map().visibility);
-  EXPECT_DOUBLE_EQ(evaluation.leaf_accuracy, best);
-
-  // Each check left the network as it stood then (not the best one), in the bundle's format
-  // (matrices as 8-bit rows, so within a few observations of the check).
-  size_t snapshots = 0;
-  for (const auto& entry : fs::directory_iterator(options.snapshot_dir)) {
-    snapshots += entry.path().extension() == ".pt";
-  }
-  EXPECT_EQ(snapshots, result.held_out_checks.size());
-  for (const HeldOutCheck& check : {result.held_out_checks.back(), result.held_out_checks[1]}) {
-    std::ifstream stream(options.snapshot_dir / SnapshotFileName(check.iteration),
-                         std::ios::binary);
-    const Network snapshot = Network::Load(stream, "snapshot");
-    EXPECT_NEAR(EvaluateNetwork(snapshot, Map().scene, Map().tree,
-                                HeldOutObservations(Map().scene, options.holdout_fraction, 0),
-                                &Map().visibility)
-                    .leaf_accuracy,
-                check.point_accuracy, 0.01)
-        << "iteration " << check.iteration;
-  }
-  // Without keep_best the last network comes back.
-  options.keep_best = false;
-  const TrainingResult last = TrainNetwork(Map().scene, Map().tree, options);
-  const NetworkEvaluation last_evaluation = EvaluateNetwork(
-      last.network, Map().scene, Map().tree,
-      HeldOutObservations(Map().scene, options.holdout_fraction, 0), &Map().visibility);
-  EXPECT_DOUBLE_EQ(last_evaluation.leaf_accuracy, last.held_out_checks.back().point_accuracy);
-}
-
-// A rate that wrecks the class means the shortcut starts as: every check after the start falls
-// far below it, so training ends once the start is a quarter of the budget behind, with the
-// start's network; without patience the whole budget is spent.
-TEST_F(TinyCityTrainerTest, EndsOnceTheBestCheckIsThePatienceBehind) {
-  TrainerOptions options = ShortcutOptions(120, Map().scene);
-  options.learning_rate = 0.3;
-  options.schedule = LearningRateSchedule::kHalving;
-  options.halving_fractions = {};
-  options.evaluations = 12;
-  options.evaluation_observations = 1 << 20;  // every held-out observation
-  ASSERT_DOUBLE_EQ(options.patience, 0.25);
-  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
-  EXPECT_TRUE(result.stopped_early);
-  EXPECT_EQ(result.best_iteration, 0);
-  // Checks every 10 iterations: the first at or past 30 ends it.
-  EXPECT_EQ(result.iterations, 30);
-  ASSERT_EQ(result.held_out_checks.size(), 4u);
-  const NetworkEvaluation evaluation = EvaluateNetwork(
-      result.network, Map().scene, Map().tree,
-      HeldOutObservations(Map().scene, options.holdout_fraction, 0), &Map().visibility);
-  EXPECT_DOUBLE_EQ(evaluation.leaf_accuracy, result.held_out_checks.front().point_accuracy);
-
-  options.patience = 0;
-  const TrainingResult whole = TrainNetwork(Map().scene, Map().tree, options);
-  EXPECT_FALSE(whole.stopped_early);
-  EXPECT_EQ(whole.iterations, 120);
-  EXPECT_EQ(whole.best_iteration, 0);
-}
-
-// A check within two standard errors of the best is no reason to stop: sampling noise.
-TEST_F(TinyCityTrainerTest, PatienceWaitsOutChecksWithinNoiseOfTheBest) {
-  TrainerOptions options = ShortcutOptions(60, Map().scene);
-  options.learning_rate = 1e-6;  // the network stays the class means
-  options.evaluations = 6;
-  const TrainingResult result = TrainNetwork(Map().scene, Map().tree, options);
-  EXPECT_FALSE(result.stopped_early);
-  EXPECT_EQ(result.iterations, 60);
 }
 
 TEST_F(TinyCityTrainerTest, EpochBudgetCountsPassesOverTheTrainingObservations) {
