@@ -19,9 +19,10 @@
 //   Pool           the matches of every candidate that agrees with the winner's pose, pooled,
 //                  and the winner's pose refined over all their inliers (kept when it has at
 //                  least the winner's inliers; FinalPose::kWinner keeps the paper's pose); where
-//                  the network keeps several rows per point (a row per view), those candidates
-//                  are first matched again, each against the rows of the points its image sees,
-//                  as nearest neighbour matches (point_row_matches.h)
+//                  the network keeps several rows per point (a row per view), the winner is
+//                  first matched again against the rows of the points its image sees, as nearest
+//                  neighbour matches (point_row_matches.h), and posed anew from those matches;
+//                  the candidates that pose explains are matched the same way and pooled
 // Thread-safe: any number of threads may call Localize concurrently on one Localizer.
 #pragma once
 
@@ -276,16 +277,29 @@ class Localizer {
   // its RANSAC finds: its pose is then not estimated, which leaves the winner and the final pose
   // as they would be.
   static bool CannotBeChosen(const std::vector<LocalizationCandidate>& candidates, size_t k);
-  // The round winner (evaluation.result.best_candidate) and the candidates its pose explains:
-  // those with at least AbsolutePoseOptions::min_inliers of their matches within the threshold.
+  // The round winner (evaluation.result.best_candidate) and the candidates `winner_pose`
+  // explains: those with at least AbsolutePoseOptions::min_inliers of their matches within the
+  // threshold.
   std::vector<size_t> AgreeingCandidates(const LocalizationQuery& query,
                                          const LocalizerOptions& options,
-                                         const Evaluation& evaluation) const;
+                                         const Evaluation& evaluation,
+                                         const Rigid3d& winner_pose) const;
   // The final pose and its matches, from the winner alone or pooled as options.final_pose says.
   struct FinalMatches;
   FinalMatches PoolAgreeingCandidates(const LocalizationQuery& query,
                                       const LocalizerOptions& options,
                                       Evaluation& evaluation) const;
+  // The pooled final pose of a network with several rows per point (point_row_matcher_): the
+  // winner and the candidates that agree with it matched again against their points' rows, the
+  // winner posed anew from its own row matches, and that pose refined over the union.
+  // `network_final` (the winner as the network posed it) stands where that fails.
+  FinalMatches PoolPointRowMatches(const LocalizationQuery& query, const LocalizerOptions& options,
+                                   const Evaluation& evaluation, FinalMatches network_final) const;
+  // `start` refined over `pooled` (one keypoint per point: the one `start` reprojects nearest);
+  // `fallback` where the refinement fails or keeps fewer than `inliers_needed` inliers.
+  FinalMatches RefineOverPool(const LocalizationQuery& query, const LocalizerOptions& options,
+                              CandidateMatches pooled, const Rigid3d& start, int inliers_needed,
+                              int num_candidates, FinalMatches fallback) const;
   // The candidate with the most inliers among those from `begin` on posed successfully; -1 when
   // none.
   static int Choose(const std::vector<LocalizationCandidate>& candidates, size_t begin = 0);

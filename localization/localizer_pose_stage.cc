@@ -65,9 +65,9 @@ void Localizer::RefineRoundWinner(const LocalizationQuery& query, const Localize
 
 std::vector<size_t> Localizer::AgreeingCandidates(const LocalizationQuery& query,
                                                   const LocalizerOptions& options,
-                                                  const Evaluation& evaluation) const {
+                                                  const Evaluation& evaluation,
+                                                  const Rigid3d& winner_pose) const {
   const auto best = static_cast<size_t>(evaluation.result.best_candidate);
-  const Rigid3d& winner_pose = evaluation.result.candidates[best].cam_from_world;
   // A candidate agrees when the winner's pose explains as many of its matches as a pose needs:
   // a measure in pixels, whatever the map's scale, that a wrong image's matches rarely pass.
   AbsolutePoseOptions counting = options.pose;
@@ -88,56 +88,84 @@ Localizer::FinalMatches Localizer::PoolAgreeingCandidates(const LocalizationQuer
                                                           const LocalizerOptions& options,
                                                           Evaluation& evaluation) const {
   const auto best = static_cast<size_t>(evaluation.result.best_candidate);
-  const std::vector<size_t> agreeing = options.final_pose == FinalPose::kWinner
-                                           ? std::vector<size_t>{best}
-                                           : AgreeingCandidates(query, options, evaluation);
   const LocalizationCandidate& winner = evaluation.result.candidates[best];
   FinalMatches final{winner.cam_from_world, winner.num_inliers, std::move(evaluation.matches[best]),
                      std::move(evaluation.inlier_masks[best])};
   if (options.final_pose == FinalPose::kWinner) return final;
-
-  std::vector<CandidateMatches> rematched;
+  // The rows are the network's: the nearest-neighbour baseline pools its own matches.
+  if (point_row_matcher_ != nullptr && options.matcher == Matcher::kNetwork) {
+    return PoolPointRowMatches(query, options, evaluation, std::move(final));
+  }
+  const std::vector<size_t> agreeing =
+      AgreeingCandidates(query, options, evaluation, winner.cam_from_world);
+  if (agreeing.size() == 1) return final;
+  // With the network's rival keypoints, all of them: the pooled pose chooses among them.
   std::vector<const CandidateMatches*> parts;
-  if (point_row_matcher_ != nullptr) {
-    // Image by image, as nearest neighbour matches: against the points of all of them at once, the
-    // ratio test met more rivals and placed Lund's XFeat queries worse (docs/decisions.md).
-    const DescriptorMatrix unit_query = UnitRows(query.descriptors);
-    const Visibility& visibility = map_->visibility();
-    for (const size_t k : agreeing) {
-      const uint32_t image = evaluation.result.candidates[k].image_index;
-      rematched.push_back(point_row_matcher_->Match(
-          unit_query, {visibility.PointsBegin(image), visibility.PointsEnd(image)},
-          options.nearest_neighbor));
-    }
-    for (const CandidateMatches& matches : rematched) parts.push_back(&matches);
-  } else {
-    if (agreeing.size() == 1) return final;
-    // With the network's rival keypoints, all of them: the pooled pose chooses among them below.
-    for (const size_t k : agreeing) {
-      const CandidateMatches& matches = k == best ? final.matches : evaluation.matches[k];
-      parts.push_back(evaluation.predictions[k].size() > 0 ? &evaluation.predictions[k] : &matches);
-    }
+  for (const size_t k : agreeing) {
+    const CandidateMatches& matches = k == best ? final.matches : evaluation.matches[k];
+    parts.push_back(evaluation.predictions[k].size() > 0 ? &evaluation.predictions[k] : &matches);
   }
   CandidateMatches pooled = UniteMatches(parts);
-  // Rivals for a point, from one candidate or several: the one the winner reprojects nearest
+  const Rigid3d start = final.cam_from_world;
+  const int inliers_needed = final.num_inliers;
+  return RefineOverPool(query, options, std::move(pooled), start, inliers_needed,
+                        static_cast<int>(agreeing.size()), std::move(final));
+}
+
+Localizer::FinalMatches Localizer::PoolPointRowMatches(const LocalizationQuery& query,
+                                                       const LocalizerOptions& options,
+                                                       const Evaluation& evaluation,
+                                                       FinalMatches network_final) const {
+  const std::vector<LocalizationCandidate>& candidates = evaluation.result.candidates;
+  const auto best = static_cast<size_t>(evaluation.result.best_candidate);
+  // Image by image, as nearest neighbour matches: against the points of all of them at once, the
+  // ratio test met more rivals and placed Lund's XFeat queries worse (docs/decisions.md).
+  const DescriptorMatrix unit_query = UnitRows(query.descriptors);
+  const Visibility& visibility = map_->visibility();
+  const auto match_rows = [&](size_t k) {
+    const uint32_t image = candidates[k].image_index;
+    return point_row_matcher_->Match(unit_query,
+                                     {visibility.PointsBegin(image), visibility.PointsEnd(image)},
+                                     options.nearest_neighbor);
+  };
+  std::vector<CandidateMatches> rematched = {match_rows(best)};
+  // The winner's pose from its own row matches, as nearest neighbour poses an image. Refined from
+  // the pose of the network's matches, the final pose stayed in that pose's basin, which moved
+  // with the training seed and budget (Lund XFeat medians 0.87-1.65x nearest neighbour's; from
+  // the row matches' own pose 0.99-1.00x on every seed; docs/decisions.md).
+  Rigid3d start = network_final.cam_from_world;
+  if (static_cast<int>(rematched.front().size()) >= options.pose.min_inliers) {
+    const AbsolutePoseResult own = Pose(query, rematched.front(), options, /*inliers_to_beat=*/0);
+    if (own.success) start = own.cam_from_world;
+  }
+  const std::vector<size_t> agreeing = AgreeingCandidates(query, options, evaluation, start);
+  for (size_t i = 1; i < agreeing.size(); ++i) rematched.push_back(match_rows(agreeing[i]));
+  std::vector<const CandidateMatches*> parts;
+  for (const CandidateMatches& matches : rematched) parts.push_back(&matches);
+  // Matches of the point rows are fewer than the network's: a pose needs its minimum of them.
+  return RefineOverPool(query, options, UniteMatches(parts), start, options.pose.min_inliers,
+                        static_cast<int>(agreeing.size()), std::move(network_final));
+}
+
+Localizer::FinalMatches Localizer::RefineOverPool(const LocalizationQuery& query,
+                                                  const LocalizerOptions& options,
+                                                  CandidateMatches pooled, const Rigid3d& start,
+                                                  int inliers_needed, int num_candidates,
+                                                  FinalMatches fallback) const {
+  // Rivals for a point, from one candidate or several: the one the start reprojects nearest
   // stands for it (on Lund with SIFT, 25.jpg: 33 -> 38 inliers, 0.269 -> 0.221 m).
   if (!pooled.confidences.empty()) {
-    pooled = NearestKeypointPerPoint(pooled, query.keypoints, query.camera, winner.cam_from_world,
-                                     map_->scene().points);
+    pooled =
+        NearestKeypointPerPoint(pooled, query.keypoints, query.camera, start, map_->scene().points);
   }
-  const std::vector<Eigen::Vector2d> pixels = KeypointPixels(query, pooled);
-  const std::vector<Eigen::Vector3d> positions = PointPositions(pooled);
-  // The winner's pose refined over the pool, not a new RANSAC: on the small city a RANSAC over
-  // the pool let a query whose inliers fill a narrow strip at one depth slide from 0.32 m to
-  // 4.3 m off for 2 more inliers; started from the winner, the refinement stays in its basin.
-  AbsolutePoseResult pose =
-      RefineAbsolutePoseFrom(query.camera, pixels, positions, winner.cam_from_world, options.pose);
-  // Matches of the point rows are fewer than the network's: a pose needs its minimum of them.
-  const int inliers_needed =
-      point_row_matcher_ != nullptr ? options.pose.min_inliers : final.num_inliers;
-  if (!pose.success || pose.num_inliers < inliers_needed) return final;
+  // Refined from the start, not a new RANSAC: on the small city a RANSAC over the pool let a
+  // query whose inliers fill a narrow strip at one depth slide from 0.32 m to 4.3 m off for 2 more
+  // inliers; started from the winner, the refinement stays in its basin.
+  AbsolutePoseResult pose = RefineAbsolutePoseFrom(query.camera, KeypointPixels(query, pooled),
+                                                   PointPositions(pooled), start, options.pose);
+  if (!pose.success || pose.num_inliers < inliers_needed) return fallback;
   return {pose.cam_from_world, pose.num_inliers, std::move(pooled), std::move(pose.inlier_mask),
-          static_cast<int>(agreeing.size())};
+          num_candidates};
 }
 
 bool Localizer::CompleteFirstLooks(const LocalizationQuery& query, const LocalizerOptions& options,

@@ -456,5 +456,44 @@ TEST(RealDataLocalizerTest, LundQueriesAgainstColmap) {
   }
 }
 
+// The nearest-neighbour baseline matches and pools the query against each candidate's own
+// observations, whatever network the map holds: a network with a row per view, whose own final
+// pose matches its point rows again, and one with one row per point give it the same pose for every
+// Lund query. Retrieval is the global descriptor's alone, since a votes' round would ask the
+// network.
+TEST(RealDataLocalizerTest, NearestNeighbourDoesNotDependOnTheNetwork) {
+  HSCLOC_REQUIRE_REAL_DATA(data, "lund");
+  testing::TempDir temp;
+  const auto features = OpenColmapDatabaseFeatures(data / "database.db");
+  const QuerySet set =
+      ReadQuerySet(data / "queries_with_intrinsics.txt", *features, data / "queries_gt.txt");
+  LocalizerOptions options;
+  options.matcher = Matcher::kNearestNeighbor;
+  options.retrieval = RetrievalMode::kGlobal;
+  TrainerOptions training;
+  training.max_iterations = 20;
+  std::vector<RunSummary> runs;
+  for (const int rows_per_point : {1, kMaxPointPrototypes}) {
+    const TrainedRealMap trained = BuildAndTrainRealMap(
+        data / "map", data / "database.db", temp / fmt::format("map-{}", rows_per_point), training,
+        rows_per_point);
+    runs.push_back(LocalizeAll(Localizer(trained.map, trained.network), options, set, "nn"));
+  }
+  ASSERT_EQ(runs[0].results.size(), set.queries.size());
+  ASSERT_EQ(runs[1].results.size(), set.queries.size());
+  for (size_t i = 0; i < set.queries.size(); ++i) {
+    SCOPED_TRACE(set.queries[i].name);
+    const PoseResult& one_row = runs[0].results[i];
+    const PoseResult& row_per_view = runs[1].results[i];
+    ASSERT_TRUE(one_row.success);
+    ASSERT_TRUE(row_per_view.success);
+    EXPECT_EQ(row_per_view.num_inliers, one_row.num_inliers);
+    EXPECT_LT((row_per_view.cam_from_world.translation - one_row.cam_from_world.translation).norm(),
+              1e-9);
+    EXPECT_LT(row_per_view.cam_from_world.rotation.angularDistance(one_row.cam_from_world.rotation),
+              1e-9);
+  }
+}
+
 }  // namespace
 }  // namespace hscloc

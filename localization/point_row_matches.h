@@ -3,9 +3,10 @@
 // training view of each point: what nearest-neighbour matching keeps, at 8 bits. Its decoding keeps
 // each point's most confident keypoint, and on real photos those matches leave a pose freer than
 // mutual nearest neighbours with a ratio test do (docs/decisions.md, "The network on real
-// photos"). So once the network has chosen the winning pose, the winner and the candidates that
-// agree with it are matched again, each against the rows of the points its image sees, with those
-// two filters, and the final pose is refined over those matches.
+// photos"). So once the network has chosen the winner, it is matched again against the rows of
+// the points its image sees, with those two filters, and posed anew from those matches; the
+// candidates that agree with that pose are matched the same way, and the final pose is refined
+// over all of their matches.
 #pragma once
 
 #include <vector>

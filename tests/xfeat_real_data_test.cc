@@ -24,10 +24,12 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// Per matcher, the queries within (0.25 m, 2 deg) and within (0.5 m, 5 deg).
+// Per matcher, the queries within (0.25 m, 2 deg) and within (0.5 m, 5 deg), and the median
+// position error.
 struct QueryCounts {
   int fine = 0;
   int medium = 0;
+  double median_position = 0;
 };
 using CountsPerMatcher = std::map<Matcher, QueryCounts>;
 
@@ -48,6 +50,7 @@ QueryCounts CountWithinBounds(const RunSummary& run) {
     counts.fine += error.position <= 0.25 && error.rotation_deg <= 2.0;
     counts.medium += error.position <= 0.5 && error.rotation_deg <= 5.0;
   }
+  counts.median_position = run.accuracy.median_position;
   return counts;
 }
 
@@ -112,10 +115,14 @@ std::vector<SeedOutcome> LocalizeWithXFeat(const fs::path& data, const fs::path&
 
 // What holds for every one of three training seeds, with margin: the set's queries within (0.25
 // m, 2 deg) with the network and with the baseline, at least these many; every query within (0.5
-// m, 5 deg) with both; and the network's held-out point accuracy no lower than the
-// nearest-class-mean matcher's beyond two standard errors of the held-out sample: the network
-// starts as the class means, and the trainer returns to its best check only for a drop larger than
-// that. Skips without the set, XFeat's weights or COLMAP.
+// m, 5 deg) with both; the network's median position error within 1.25 times the baseline's (the
+// final pose starts from the winner's own row matches: 1.12 to 1.13 times on Lund over seeds 1 to
+// 5, with the default budget and with four minutes, where a start from the pose of the network's
+// matches gave 0.98 to 1.85 times; docs/decisions.md); and the network's held-out point accuracy
+// no lower than the nearest-class-mean matcher's beyond two standard errors of the held-out
+// sample: the network starts as a nearest-neighbour classifier over its points' training views,
+// within that of the class means, and the trainer returns to its best check only for a drop
+// larger than that. Skips without the set, XFeat's weights or COLMAP.
 void ExpectQueriesOverSeeds(const std::string& set, int network_fine, int nearest_neighbor_fine) {
   HSCLOC_REQUIRE_REAL_DATA(data, set);
   HSCLOC_REQUIRE_REAL_DATA(weights, "weights/xfeat");
@@ -130,6 +137,8 @@ void ExpectQueriesOverSeeds(const std::string& set, int network_fine, int neares
     for (const Matcher matcher : {Matcher::kNetwork, Matcher::kNearestNeighbor}) {
       EXPECT_EQ(counts[matcher].medium, num_queries) << MatcherName(matcher);
     }
+    EXPECT_LE(counts[Matcher::kNetwork].median_position,
+              1.25 * counts[Matcher::kNearestNeighbor].median_position);
     const double p = outcome.class_mean_accuracy;
     const double standard_error =
         std::sqrt(p * (1 - p) / static_cast<double>(std::max<size_t>(1, outcome.num_held_out)));
