@@ -81,9 +81,16 @@ CandidateMatches MatchNearestRows(const DescriptorMatrix& unit_query,
   THROW_CHECK_EQ(unit_query.cols(), rows.cols());
   // The similarities come from the network's matrix-product kernel, at the machine's vector width:
   // the rows packed once, the queries block by block.
-  const DescriptorMatrix contiguous_rows = rows;
+  // Rows side by side already (an image's observations, a gathered set of point rows) are packed
+  // where they lie; only a strided view is copied first.
+  DescriptorMatrix strided_copy;
+  const float* row_data = rows.data();
+  if (rows.outerStride() != rows.cols()) {
+    strided_copy = rows;
+    row_data = strided_copy.data();
+  }
   const dense_kernels::PackedMatrix packed_rows =
-      dense_kernels::PackMatrix(contiguous_rows.data(), count, rows.cols());
+      dense_kernels::PackMatrix(row_data, count, rows.cols());
   const std::vector<float> no_bias(count, 0.0f);
   const int64_t block_rows = std::min(num_queries, QueryRowsPerBlock(count));
   std::vector<float> block(block_rows * count);

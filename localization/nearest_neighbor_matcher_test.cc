@@ -157,6 +157,16 @@ TEST(NearestNeighborMatcher, ManyQueriesMatchAsTheDefinitionSays) {
     EXPECT_GT(expected.size(), 100u);
     EXPECT_LT(expected.size(), 650u);
   }
+  // Rows that do not lie side by side (the first 32 columns of wider rows) match the same way.
+  DescriptorMatrix wider(num_rows, 40);
+  wider.leftCols(32) = rows;
+  wider.rightCols(8).setConstant(7.0f);
+  const NearestNeighborOptions options{.ratio = 0.9, .mutual = true};
+  const CandidateMatches strided =
+      MatchNearestRows(query, wider.leftCols(32), row_points.data(), options);
+  const CandidateMatches expected = MatchByDefinition(query, rows, row_points, options);
+  EXPECT_EQ(strided.keypoints, expected.keypoints);
+  EXPECT_EQ(strided.point_indices, expected.point_indices);
 }
 
 TEST(NearestNeighborMatcher, EmptySceneAndBadImageIndex) {
