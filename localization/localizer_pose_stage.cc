@@ -131,8 +131,8 @@ Localizer::FinalMatches Localizer::PoolPointRowMatches(const LocalizationQuery& 
   std::vector<CandidateMatches> rematched = {match_rows(best)};
   // The winner's pose from its own row matches, as nearest neighbour poses an image. Refined from
   // the pose of the network's matches, the final pose stayed in that pose's basin, which moved
-  // with the training seed and budget (Lund XFeat medians 0.87-1.65x nearest neighbour's; from
-  // the row matches' own pose 0.99-1.00x on every seed; docs/decisions.md).
+  // with the training seed and budget (Lund XFeat medians 0.98-1.85x nearest neighbour's; from
+  // the row matches' own pose 1.12-1.13x on every seed and budget; docs/decisions.md).
   Rigid3d start = network_final.cam_from_world;
   if (static_cast<int>(rematched.front().size()) >= options.pose.min_inliers) {
     const AbsolutePoseResult own = Pose(query, rematched.front(), options, /*inliers_to_beat=*/0);
