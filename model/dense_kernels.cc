@@ -187,46 +187,72 @@ void NodeLogits(const float* projected, int64_t num_inputs, int64_t dim, const f
 
 namespace {
 
-// Eight points at a time, each with its own sum: eight independent chains of fused multiply-adds
-// keep both FMA units busy through their latency, where four chains left half of them idle.
-Packet BestOfEightPoints(const float* transposed, int64_t dim, const float* rows, int64_t width) {
-  Packet sums[8];
-  for (int p = 0; p < 8; ++p) sums[p] = ei::pset1<Packet>(rows[p * width + dim]);
+// The scores <projected, w_p> + b_p of kPoints points at once, each with its own chain of fused
+// multiply-adds (the bias first, then the dimensions in order): eight independent chains keep both
+// FMA units busy through their latency, where four chains left half of them idle.
+template <int kPoints>
+void ScoresOfPoints(const float* transposed, int64_t dim, const float* rows, int64_t width,
+                    Packet* sums) {
+  for (int p = 0; p < kPoints; ++p) sums[p] = ei::pset1<Packet>(rows[p * width + dim]);
   for (int64_t d = 0; d < dim; ++d) {
     const Packet x = ei::pload<Packet>(transposed + d * kLanes);
-    for (int p = 0; p < 8; ++p)
+    for (int p = 0; p < kPoints; ++p) {
       sums[p] = ei::pmadd(ei::pset1<Packet>(rows[p * width + d]), x, sums[p]);
+    }
   }
-  return ei::pmax(ei::pmax(ei::pmax(sums[0], sums[1]), ei::pmax(sums[2], sums[3])),
-                  ei::pmax(ei::pmax(sums[4], sums[5]), ei::pmax(sums[6], sums[7])));
 }
 
-// Four points at a time, each with its own sum: independent chains of fused multiply-adds.
-Packet BestOfFourPoints(const float* transposed, int64_t dim, const float* rows, int64_t width) {
-  const float* w0 = rows;
-  const float* w1 = rows + width;
-  const float* w2 = rows + 2 * width;
-  const float* w3 = rows + 3 * width;
-  Packet s0 = ei::pset1<Packet>(w0[dim]);
-  Packet s1 = ei::pset1<Packet>(w1[dim]);
-  Packet s2 = ei::pset1<Packet>(w2[dim]);
-  Packet s3 = ei::pset1<Packet>(w3[dim]);
-  for (int64_t d = 0; d < dim; ++d) {
-    const Packet x = ei::pload<Packet>(transposed + d * kLanes);
-    s0 = ei::pmadd(ei::pset1<Packet>(w0[d]), x, s0);
-    s1 = ei::pmadd(ei::pset1<Packet>(w1[d]), x, s1);
-    s2 = ei::pmadd(ei::pset1<Packet>(w2[d]), x, s2);
-    s3 = ei::pmadd(ei::pset1<Packet>(w3[d]), x, s3);
+// take(sums, count) for the scores of points [begin, end), eight, four, then one at a time.
+template <typename Take>
+void ScoreSegment(const float* transposed, int64_t dim, const float* point_rows, int64_t begin,
+                  int64_t end, const Take& take) {
+  const int64_t width = dim + 1;
+  Packet sums[8];
+  int64_t point = begin;
+  for (; point + 8 <= end; point += 8) {
+    ScoresOfPoints<8>(transposed, dim, point_rows + point * width, width, sums);
+    take(sums, 8);
   }
-  return ei::pmax(ei::pmax(s0, s1), ei::pmax(s2, s3));
+  for (; point + 4 <= end; point += 4) {
+    ScoresOfPoints<4>(transposed, dim, point_rows + point * width, width, sums);
+    take(sums, 4);
+  }
+  for (; point < end; ++point) {
+    ScoresOfPoints<1>(transposed, dim, point_rows + point * width, width, sums);
+    take(sums, 1);
+  }
 }
 
-Packet ScoreOfPoint(const float* transposed, int64_t dim, const float* row) {
-  Packet score = ei::pset1<Packet>(row[dim]);
-  for (int64_t d = 0; d < dim; ++d) {
-    score = ei::pmadd(ei::pset1<Packet>(row[d]), ei::pload<Packet>(transposed + d * kLanes), score);
+// The pooled logits' common frame: kLanes inputs at a time, transposed to [dim][kLanes] so that one
+// packet holds one dimension of each (a point's score for all of them is a chain of dim fused
+// multiply-adds). score_chunk(transposed) runs once per packet of inputs, then
+// pool_segment(transposed, begin, end) gives each lane's pooled score of a segment's rows, and each
+// child keeps the largest of its segments'.
+template <typename ScoreChunk, typename PoolSegment>
+void PooledLogits(const float* projected, int64_t num_inputs, int64_t dim,
+                  const uint32_t* segment_starts, const uint8_t* segment_groups,
+                  int64_t num_segments, int64_t out_columns, float* out,
+                  const ScoreChunk& score_chunk, const PoolSegment& pool_segment) {
+  thread_local std::vector<float, E::aligned_allocator<float>> transposed;
+  transposed.resize(dim * kLanes);
+  alignas(64) float pooled_lanes[kLanes];
+  for (int64_t first = 0; first < num_inputs; first += kLanes) {
+    const int64_t lanes = std::min<int64_t>(kLanes, num_inputs - first);
+    for (int64_t d = 0; d < dim; ++d) {
+      for (int64_t lane = 0; lane < kLanes; ++lane) {
+        transposed[d * kLanes + lane] = lane < lanes ? projected[(first + lane) * dim + d] : 0.0f;
+      }
+    }
+    score_chunk(transposed.data());
+    for (int64_t k = 0; k < num_segments; ++k) {
+      ei::pstore(pooled_lanes,
+                 pool_segment(transposed.data(), segment_starts[k], segment_starts[k + 1]));
+      for (int64_t lane = 0; lane < lanes; ++lane) {
+        float& logit = out[(first + lane) * out_columns + segment_groups[k]];
+        logit = std::max(logit, pooled_lanes[lane]);
+      }
+    }
   }
-  return score;
 }
 
 }  // namespace
@@ -235,41 +261,50 @@ void PooledMaxLogits(const float* projected, int64_t num_inputs, int64_t dim,
                      const float* point_rows, const uint32_t* segment_starts,
                      const uint8_t* segment_groups, int64_t num_segments, int64_t out_columns,
                      float* out) {
-  const int64_t width = dim + 1;
-  // kLanes inputs side by side, [dim][kLanes], so that one packet holds one dimension of each:
-  // a point's score for all of them is a chain of dim fused multiply-adds.
-  thread_local std::vector<float, E::aligned_allocator<float>> transposed;
-  transposed.resize(dim * kLanes);
-  alignas(64) float best_of_lanes[kLanes];
-  for (int64_t first = 0; first < num_inputs; first += kLanes) {
-    const int64_t lanes = std::min<int64_t>(kLanes, num_inputs - first);
-    for (int64_t d = 0; d < dim; ++d) {
-      for (int64_t lane = 0; lane < kLanes; ++lane) {
-        transposed[d * kLanes + lane] = lane < lanes ? projected[(first + lane) * dim + d] : 0.0f;
-      }
+  const auto best_score = [&](const float* transposed, int64_t begin, int64_t end) {
+    Packet best = ei::pset1<Packet>(-std::numeric_limits<float>::infinity());
+    ScoreSegment(transposed, dim, point_rows, begin, end, [&](const Packet* sums, int count) {
+      for (int p = 0; p < count; ++p) best = ei::pmax(best, sums[p]);
+    });
+    return best;
+  };
+  PooledLogits(
+      projected, num_inputs, dim, segment_starts, segment_groups, num_segments, out_columns, out,
+      [](const float*) {}, best_score);
+}
+
+void BestPointLogSumExpLogits(const float* projected, int64_t num_inputs, int64_t dim,
+                              const float* point_rows, const uint32_t* segment_starts,
+                              const uint8_t* segment_groups, int64_t num_segments,
+                              int64_t out_columns, float* out) {
+  // A point has a few rows: the whole chunk is scored eight rows at a time across the points'
+  // bounds, which keeps the fused multiply-add chains as busy as the maximum's; each point then
+  // reduces its scores.
+  thread_local std::vector<float, E::aligned_allocator<float>> scores;
+  const int64_t chunk_begin = segment_starts[0];
+  scores.resize(static_cast<size_t>(segment_starts[num_segments] - chunk_begin) * kLanes);
+  const auto score_chunk = [&](const float* transposed) {
+    float* next = scores.data();
+    ScoreSegment(transposed, dim, point_rows, chunk_begin, segment_starts[num_segments],
+                 [&](const Packet* sums, int count) {
+                   for (int p = 0; p < count; ++p, next += kLanes) ei::pstore(next, sums[p]);
+                 });
+  };
+  const auto log_sum_exp = [&](const float*, int64_t begin, int64_t end) {
+    const float* first = scores.data() + (begin - chunk_begin) * kLanes;
+    const float* last = scores.data() + (end - chunk_begin) * kLanes;
+    Packet best = ei::pset1<Packet>(-std::numeric_limits<float>::infinity());
+    for (const float* score = first; score != last; score += kLanes) {
+      best = ei::pmax(best, ei::pload<Packet>(score));
     }
-    for (int64_t k = 0; k < num_segments; ++k) {
-      Packet best = ei::pset1<Packet>(-std::numeric_limits<float>::infinity());
-      int64_t point = segment_starts[k];
-      const int64_t end = segment_starts[k + 1];
-      for (; point + 8 <= end; point += 8) {
-        best = ei::pmax(
-            best, BestOfEightPoints(transposed.data(), dim, point_rows + point * width, width));
-      }
-      for (; point + 4 <= end; point += 4) {
-        best = ei::pmax(
-            best, BestOfFourPoints(transposed.data(), dim, point_rows + point * width, width));
-      }
-      for (; point < end; ++point) {
-        best = ei::pmax(best, ScoreOfPoint(transposed.data(), dim, point_rows + point * width));
-      }
-      ei::pstore(best_of_lanes, best);
-      for (int64_t lane = 0; lane < lanes; ++lane) {
-        float& logit = out[(first + lane) * out_columns + segment_groups[k]];
-        logit = std::max(logit, best_of_lanes[lane]);
-      }
+    Packet sum = ei::pzero(best);
+    for (const float* score = first; score != last; score += kLanes) {
+      sum = ei::padd(sum, ei::pexp(ei::psub(ei::pload<Packet>(score), best)));
     }
-  }
+    return ei::padd(best, ei::plog(sum));
+  };
+  PooledLogits(projected, num_inputs, dim, segment_starts, segment_groups, num_segments,
+               out_columns, out, score_chunk, log_sum_exp);
 }
 
 namespace {

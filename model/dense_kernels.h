@@ -63,6 +63,14 @@ void PooledMaxLogits(const float* projected, int64_t num_inputs, int64_t dim,
                      const uint8_t* segment_groups, int64_t num_segments, int64_t out_columns,
                      float* out);
 
+// PooledMaxLogits for segments that are each one point's rows: a point scores the log-sum-exp
+// of its rows' scores, and out[i * out_columns + segment_groups[k]] becomes the larger of its value
+// and point k's score (each child keeps its best point). A point's rows must be one segment.
+void BestPointLogSumExpLogits(const float* projected, int64_t num_inputs, int64_t dim,
+                              const float* point_rows, const uint32_t* segment_starts,
+                              const uint8_t* segment_groups, int64_t num_segments,
+                              int64_t out_columns, float* out);
+
 // Each of `rows` rows of `columns` values replaced by its softmax. A row's trailing -inf values
 // (children a parent does not have) become 0 without an exp each; the rest is summed in the same
 // order as over the whole row, so the result is the same to the bit.

@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <string>
 #include <vector>
@@ -179,11 +180,14 @@ TEST(DenseKernelsTest, SoftmaxRowsGiveTrailingMissingValuesNothing) {
   }
 }
 
+using PoolingKernel = decltype(&dense_kernels::PooledMaxLogits);
+
 // Every number of inputs (packet multiples, tails, fewer than a packet), segments of one to sixteen
-// points (the eight- and four-point steps and their tails; a child may own several segments), any
-// width: the best score of each segment, summed in double as a reference, and an output already
-// above it left alone.
-TEST(DenseKernelsTest, PooledMaxLogitsKeepsEachSegmentsBestScore) {
+// rows (the eight- and four-row steps and their tails; a child may own several segments), any
+// width: each child holds the largest pool(scores of a segment's rows) over its segments, the
+// scores summed in double as a reference, and an output already above it is left alone.
+void ExpectEachChildsBestSegment(PoolingKernel kernel,
+                                 const std::function<double(const std::vector<double>&)>& pool) {
   Random random(5);
   const int64_t columns = 12;
   for (const int64_t dim : {1, 3, 16, 33}) {
@@ -199,19 +203,20 @@ TEST(DenseKernelsTest, PooledMaxLogitsKeepsEachSegmentsBestScore) {
       std::vector<float> out(inputs * columns, -std::numeric_limits<float>::infinity());
       const int64_t kept_input = inputs / 2;
       out[kept_input * columns + groups[3]] = 1e6f;
-      dense_kernels::PooledMaxLogits(projected.data(), inputs, dim, rows.data(), starts.data(),
-                                     groups.data(), static_cast<int64_t>(groups.size()), columns,
-                                     out.data());
+      kernel(projected.data(), inputs, dim, rows.data(), starts.data(), groups.data(),
+             static_cast<int64_t>(groups.size()), columns, out.data());
       for (int64_t i = 0; i < inputs; ++i) {
         std::vector<double> expected(columns, -std::numeric_limits<double>::infinity());
         for (size_t k = 0; k < groups.size(); ++k) {
+          std::vector<double> scores;
           for (uint32_t p = starts[k]; p < starts[k + 1]; ++p) {
             double score = rows[p * (dim + 1) + dim];
             for (int64_t d = 0; d < dim; ++d) {
               score += double{projected[i * dim + d]} * rows[p * (dim + 1) + d];
             }
-            expected[groups[k]] = std::max(expected[groups[k]], score);
+            scores.push_back(score);
           }
+          expected[groups[k]] = std::max(expected[groups[k]], pool(scores));
         }
         if (i == kept_input) expected[groups[3]] = 1e6;
         for (int64_t c = 0; c < columns; ++c) {
@@ -228,8 +233,25 @@ TEST(DenseKernelsTest, PooledMaxLogitsKeepsEachSegmentsBestScore) {
   }
 }
 
-// An input's pooled logits are bit-identical wherever it sits among the inputs (its lane).
-TEST(DenseKernelsTest, PooledMaxLogitsDoNotDependOnTheInputsPlace) {
+TEST(DenseKernelsTest, PooledMaxLogitsKeepEachSegmentsBestScore) {
+  ExpectEachChildsBestSegment(dense_kernels::PooledMaxLogits, [](const std::vector<double>& s) {
+    return *std::max_element(s.begin(), s.end());
+  });
+}
+
+// Segments as points: each scores the log of its rows' summed exponentials.
+TEST(DenseKernelsTest, BestPointLogSumExpLogitsKeepEachChildsBestPoint) {
+  ExpectEachChildsBestSegment(dense_kernels::BestPointLogSumExpLogits,
+                              [](const std::vector<double>& scores) {
+                                double sum = 0;
+                                for (const double score : scores) sum += std::exp(score);
+                                return std::log(sum);
+                              });
+}
+
+// An input's pooled logits are bit-identical wherever it sits among the inputs (its lane), for
+// either pooling.
+TEST(DenseKernelsTest, PooledLogitsDoNotDependOnTheInputsPlace) {
   Random random(6);
   const int64_t dim = 16;
   const int64_t columns = 3;
@@ -237,17 +259,20 @@ TEST(DenseKernelsTest, PooledMaxLogitsDoNotDependOnTheInputsPlace) {
   const std::vector<uint32_t> starts = {0, 7, 8, 20};
   const std::vector<uint8_t> groups = {0, 2, 1};
   const std::vector<float> rows = Normal(20 * (dim + 1), random);
-  std::vector<float> first;
-  for (int64_t place = 0; place < 21; ++place) {
-    std::vector<float> projected = Normal(21 * dim, random);
-    std::copy(input.begin(), input.end(), projected.begin() + place * dim);
-    std::vector<float> out(21 * columns, -std::numeric_limits<float>::infinity());
-    dense_kernels::PooledMaxLogits(projected.data(), 21, dim, rows.data(), starts.data(),
-                                   groups.data(), 3, columns, out.data());
-    const std::vector<float> logits(out.begin() + place * columns,
-                                    out.begin() + (place + 1) * columns);
-    if (place == 0) first = logits;
-    EXPECT_EQ(logits, first) << "input at place " << place;
+  for (const PoolingKernel kernel :
+       {dense_kernels::PooledMaxLogits, dense_kernels::BestPointLogSumExpLogits}) {
+    std::vector<float> first;
+    for (int64_t place = 0; place < 21; ++place) {
+      std::vector<float> projected = Normal(21 * dim, random);
+      std::copy(input.begin(), input.end(), projected.begin() + place * dim);
+      std::vector<float> out(21 * columns, -std::numeric_limits<float>::infinity());
+      kernel(projected.data(), 21, dim, rows.data(), starts.data(), groups.data(), 3, columns,
+             out.data());
+      const std::vector<float> logits(out.begin() + place * columns,
+                                      out.begin() + (place + 1) * columns);
+      if (place == 0) first = logits;
+      EXPECT_EQ(logits, first) << "input at place " << place;
+    }
   }
 }
 

@@ -2,6 +2,7 @@
 // and version so that another file or an older format is named, not misread.
 #include <fmt/ranges.h>
 
+#include <cmath>
 #include <istream>
 #include <ostream>
 #include <sstream>
@@ -26,8 +27,13 @@ constexpr int64_t kFormatMagic = 0x4e435348;  // "HSCN"
 // level without a choice, and a bundle's matrices as 8-bit rows (docs/decisions.md). Version 8
 // added the shared trunk, stored once under its first level's names; older archives have a
 // trunk per level. Version 9 added the point rows' offsets of a network with several rows per
-// point; older archives have one.
-constexpr int64_t kFormatVersion = 9;
+// point; older archives have one. Version 10 scores a point of several rows by their log-sum-exp
+// rather than their maximum, each bias starting at -log of its point's rows (Pooling::kBestPoint):
+// its 8-bit rows store each bias plus that log, and a version 9 network of several rows per point
+// gets the shift on load, so that a point scores the log of its rows' mean exponential.
+constexpr int64_t kFormatVersion = 10;
+constexpr int64_t kFirstLogSumExpRowsVersion = 10;
+constexpr char kPointRowsName[] = "point_rows";
 constexpr int64_t kFirstFlatWeightsVersion = 5;
 // The per-row scales of a matrix stored as 8-bit rows, under the matrix's name plus this suffix.
 constexpr char kRowScalesSuffix[] = ".row_scales";
@@ -55,11 +61,37 @@ std::vector<int64_t> ReadInt64Vector(torch::serialize::InputArchive& archive,
 // dimensions: dense weights and the tables with a row per image, node or point) is stored as 8-bit
 // rows and their scales; vectors (biases, scales) and buffers stay at full precision, as does a
 // matrix holding a value that is not finite.
-void WriteWeights(const HscNet& module, WeightStorage storage,
+// log(rows of the point) for each point row, [rows]; empty with one row per point.
+torch::Tensor LogRowsOfPoint(const NetworkShape& shape) {
+  if (shape.point_row_offsets.empty()) return {};
+  torch::Tensor logs = torch::empty({shape.point_row_offsets.back()});
+  for (size_t rank = 0; rank + 1 < shape.point_row_offsets.size(); ++rank) {
+    const int64_t first = shape.point_row_offsets[rank];
+    const int64_t count = shape.point_row_offsets[rank + 1] - first;
+    logs.narrow(0, first, count).fill_(std::log(static_cast<double>(count)));
+  }
+  return logs;
+}
+
+// Point rows of several rows per point plus `sign` times LogRowsOfPoint on their biases.
+torch::Tensor ShiftPointRowBiases(const NetworkShape& shape, torch::Tensor rows, double sign) {
+  const torch::Tensor logs = LogRowsOfPoint(shape);
+  if (!logs.defined()) return rows;
+  rows = rows.clone();
+  rows.select(1, rows.size(1) - 1).add_(logs.to(rows.device()), sign);
+  return rows;
+}
+
+void WriteWeights(const HscNet& module, const NetworkShape& shape, WeightStorage storage,
                   torch::serialize::OutputArchive& weights) {
   for (const auto& item : module->named_parameters()) {
     const std::string& name = item.key();
-    const torch::Tensor stored = item.value().detach().cpu();
+    torch::Tensor stored = item.value().detach().cpu();
+    // A bias of -log(rows) would set its row's 8-bit scale and leave the weights a fraction of
+    // their precision; stored plus that log, it is near the weights' size.
+    if (storage == WeightStorage::kInt8Rows && name == kPointRowsName) {
+      stored = ShiftPointRowBiases(shape, stored, 1);
+    }
     if (storage == WeightStorage::kInt8Rows && stored.dim() == 2 &&
         torch::isfinite(stored).all().item<bool>()) {
       const Int8Rows rows = QuantizeRows(stored);
@@ -148,7 +180,7 @@ void NetworkInternals::SaveTo(const Network& network, torch::serialize::OutputAr
   WriteInt64Vector(archive, "nodes_per_depth", shape.nodes_per_depth);
   WriteInt64Vector(archive, "point_row_offsets", shape.point_row_offsets);
   torch::serialize::OutputArchive weights;
-  WriteWeights(network.impl_->module, storage, weights);
+  WriteWeights(network.impl_->module, shape, storage, weights);
   archive.write("weights", weights);
 }
 
@@ -238,6 +270,13 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
   } catch (const c10::Error& error) {
     ThrowInvalidArgument("{}: network weights do not match shape and options: {}", source,
                          error.what_without_backtrace());
+  }
+  torch::Tensor scales;
+  if (options.pooled_point_rows &&
+      (format[1] < kFirstLogSumExpRowsVersion ||
+       weights.try_read(std::string(kPointRowsName) + kRowScalesSuffix, scales))) {
+    torch::NoGradGuard no_grad;
+    impl->module->point_rows.copy_(ShiftPointRowBiases(shape, impl->module->point_rows, -1));
   }
   Network network(std::move(impl));
   network.SetDevice(device);

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <cmath>
 #include <functional>
 #include <sstream>
 
@@ -102,13 +103,19 @@ TEST(NetworkArchiveTest, CurrentVersionKeepsOutputTablesDecodingAndCounts) {
   }
 }
 
-TEST(NetworkArchiveTest, SeveralRowsPerPointKeepTheirOffsets) {
-  const RandomMap map = MakeRandomMap(12);
-  const NetworkShape shape = testing_support::WithPrototypeRows(map.shape);
+// Small pooled point rows, decoded with the visibility mask.
+NetworkOptions PooledRowOptions() {
   NetworkOptions options = testing_support::SmallOptions();
   options.node_conditioning = false;
   options.pooled_point_rows = true;
   options.masked_decoding = true;
+  return options;
+}
+
+TEST(NetworkArchiveTest, SeveralRowsPerPointKeepTheirOffsets) {
+  const RandomMap map = MakeRandomMap(12);
+  const NetworkShape shape = testing_support::WithPrototypeRows(map.shape);
+  const NetworkOptions options = PooledRowOptions();
   const Network network(shape, options, 5);
   std::stringstream stream;
   network.Save(stream);
@@ -256,6 +263,35 @@ std::string RewrittenArchive(
   std::ostringstream bytes;
   rewritten.save_to(bytes);
   return bytes.str();
+}
+
+// A version 9 network of several rows per point was trained for each point's best row: its biases
+// are shifted by -log of their point's rows on load, so that a point scores its rows' mean
+// exponential; a version 9 network of one row per point loads as it was.
+TEST(NetworkArchiveTest, VersionNineRowsPerViewScoreTheirMeanExponential) {
+  const RandomMap map = MakeRandomMap(12);
+  const NetworkShape shape = testing_support::WithPrototypeRows(map.shape);
+  const NetworkOptions options = PooledRowOptions();
+  const Network network(shape, options, 5);
+  const auto unchanged = [](const std::string&, const torch::Tensor& tensor) { return tensor; };
+  std::istringstream input(RewrittenArchive(network, {0x4e435348, 9}, unchanged));
+  const Network loaded = Network::Load(input, "v9.pt");
+  const torch::Tensor trained = NetworkInternals::Module(network)->point_rows;
+  const torch::Tensor shifted = NetworkInternals::Module(loaded)->point_rows;
+  const int64_t bias = trained.size(1) - 1;
+  for (size_t rank = 0; rank + 1 < shape.point_row_offsets.size(); ++rank) {
+    const int64_t first = shape.point_row_offsets[rank];
+    const int64_t count = shape.point_row_offsets[rank + 1] - first;
+    for (int64_t row = first; row < first + count; ++row) {
+      EXPECT_NEAR(shifted[row][bias].item<float>(),
+                  trained[row][bias].item<float>() - std::log(static_cast<float>(count)), 1e-5);
+      EXPECT_TRUE(torch::equal(shifted[row].narrow(0, 0, bias), trained[row].narrow(0, 0, bias)));
+    }
+  }
+
+  const Network one_row(map.shape, options, 5);
+  std::istringstream one_row_input(RewrittenArchive(one_row, {0x4e435348, 9}, unchanged));
+  EXPECT_TRUE(Network::Load(one_row_input, "v9-one-row.pt").HasSameWeights(one_row));
 }
 
 // An archive whose weights do not fit the network says which weight.

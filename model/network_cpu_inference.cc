@@ -113,6 +113,8 @@ class CpuForwardPass {
       candidates_ = std::make_unique<PointCandidates>(tree, visibility_mask, image_indices,
                                                       &network.shape().point_row_offsets);
       point_rows_ = NetworkInternals::Module(network)->point_rows.data_ptr<float>();
+      several_rows_per_point_ = !shape_.point_row_offsets.empty();
+      if (several_rows_per_point_) pool_point_rows_ = dense_kernels::BestPointLogSumExpLogits;
       index_ = index;
     }
   }
@@ -434,16 +436,15 @@ class CpuForwardPass {
   }
 
   // Each run of rows shares its image and parent, hence its candidate points: their rows are
-  // gathered a chunk at a time, and each child keeps the best score of its points
-  // (PooledPointLogits, Pooling::kMax), scored and maximized in one pass
-  // (dense_kernels::PooledMaxLogits): a score matrix written, biased and reread took most of an
-  // id-free pass at aachen scale.
+  // gathered a chunk at a time, and each child keeps the score of its best point, a point's
+  // score being its row's or, with several rows per point, their log-sum-exp (PooledPointLogits,
+  // Pooling::kBestPoint). They are scored and pooled in one pass (dense_kernels::PooledMaxLogits,
+  // BestPointLogSumExpLogits): a score matrix written, biased and reread took most of an id-free
+  // pass at aachen scale.
   void PooledLogits(const float* point_rows, int depth, int64_t begin, int64_t end,
                     BlockScratch& scratch) {
-    constexpr size_t kChunk = 512;
     const int64_t branching = shape_.branching;
     const int64_t row_width = node_output_dim_ + 1;
-    scratch.gathered.resize(kChunk * row_width);
     std::fill_n(scratch.logits.data(), (end - begin) * branching,
                 -std::numeric_limits<float>::infinity());
     for (int64_t i = begin; i < end;) {
@@ -465,19 +466,20 @@ class CpuForwardPass {
                                           static_cast<uint32_t>(parent));
       const int64_t run_rows = run_end - i;
       float* run_logits = scratch.logits.data() + (i - begin) * branching;
-      for (size_t first = 0; first < span.size; first += kChunk) {
-        const size_t count = std::min(kChunk, span.size - first);
+      for (size_t first = 0; first < span.size;) {
+        const size_t count = ChunkEnd(span, first) - first;
         // A whole range of ranks (every point under the parent) is already contiguous in the
         // table; only an image's list of ranks needs gathering.
-        const bool contiguous = span.rows == nullptr;
-        const float* rows = contiguous ? point_rows + (span.first + first) * row_width
-                                       : GatherRows(point_rows, span, first, count, scratch);
+        const float* rows = span.rows == nullptr
+                                ? point_rows + (span.first + first) * row_width
+                                : GatherRows(point_rows, span, first, count, scratch);
         FindSegments(span, first, count, depth, scratch);
         multiply_adds_ += run_rows * static_cast<int64_t>(count) * node_output_dim_;
-        dense_kernels::PooledMaxLogits(
+        pool_point_rows_(
             scratch.projected.data() + (i - begin) * node_output_dim_, run_rows, node_output_dim_,
             rows, scratch.segment_starts.data(), scratch.segment_groups.data(),
             static_cast<int64_t>(scratch.segment_groups.size()), branching, run_logits);
+        first += count;
       }
       // A row without candidates (its path left the tree) keeps finite logits.
       if (span.size == 0) std::fill_n(run_logits, run_rows * branching, 0.0f);
@@ -485,10 +487,24 @@ class CpuForwardPass {
     }
   }
 
+  // The end of the chunk of the span's candidates from `first`: about kChunk rows, and with
+  // several rows per point never inside a point, whose rows are pooled together.
+  size_t ChunkEnd(const CandidateSpan& span, size_t first) const {
+    constexpr size_t kChunk = 512;
+    size_t end = std::min(span.size, first + kChunk);
+    if (!several_rows_per_point_) return end;
+    // A span holds each of its points' rows side by side.
+    const uint32_t end_of_point =
+        candidates_->FirstRowOfRank(candidates_->RankOfRow(span[end - 1]) + 1);
+    while (end < span.size && span[end] < end_of_point) ++end;
+    return end;
+  }
+
   // The rows of candidates [first, first + count) of the span, copied side by side.
   const float* GatherRows(const float* point_rows, const CandidateSpan& span, size_t first,
                           size_t count, BlockScratch& scratch) const {
     const int64_t row_width = node_output_dim_ + 1;
+    scratch.gathered.resize(count * row_width);
     for (size_t m = 0; m < count; ++m) {
       std::copy_n(point_rows + span[first + m] * row_width, row_width,
                   scratch.gathered.data() + m * row_width);
@@ -496,15 +512,21 @@ class CpuForwardPass {
     return scratch.gathered.data();
   }
 
-  // Candidates come in rank order, so a child's points are one run of the chunk: where each run
-  // starts (the last entry: the chunk's end) and its child.
+  // Candidates come in rank order, so a child's points are one run of the chunk: where each
+  // segment starts (the last entry: the chunk's end) and its child. A segment is a child's run,
+  // or with several rows per point one point's rows.
   void FindSegments(const CandidateSpan& span, size_t first, size_t count, int depth,
                     BlockScratch& scratch) const {
     scratch.segment_starts.clear();
     scratch.segment_groups.clear();
+    uint32_t end_of_point = 0;
     for (size_t m = 0; m < count; ++m) {
-      const uint8_t group = candidates_->LabelOfRow(span[first + m], depth);
-      if (m == 0 || group != scratch.segment_groups.back()) {
+      const uint32_t row = span[first + m];
+      if (m > 0 && row < end_of_point) continue;  // the point of the row before
+      const uint32_t rank = candidates_->RankOfRow(row);
+      end_of_point = candidates_->FirstRowOfRank(rank + 1);
+      const uint8_t group = candidates_->LabelOfRow(row, depth);
+      if (several_rows_per_point_ || m == 0 || group != scratch.segment_groups.back()) {
         scratch.segment_starts.push_back(static_cast<uint32_t>(m));
         scratch.segment_groups.push_back(group);
       }
@@ -546,6 +568,8 @@ class CpuForwardPass {
   // Pooled point rows: the candidates of the call's images, and the network's table.
   std::unique_ptr<PointCandidates> candidates_;
   const float* point_rows_ = nullptr;
+  bool several_rows_per_point_ = false;
+  decltype(&dense_kernels::PooledMaxLogits) pool_point_rows_ = dense_kernels::PooledMaxLogits;
   // Where given, rows without an image score the root's children through it: the level's such
   // rows, their projections [rows, node_output_dim] and their logits [rows, branching].
   const PointRowIndex* index_ = nullptr;

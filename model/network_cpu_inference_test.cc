@@ -8,6 +8,7 @@
 #include "model/network_decoding.h"
 #include "model/network_module.h"
 #include "model/network_test_support.h"
+#include "model/point_candidates.h"
 #include "util/random.h"
 
 namespace hscloc {
@@ -82,28 +83,79 @@ TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperators) {
   }
 }
 
-// With several rows per point, both paths pool a point's rows (a child's best row wins), and a
-// point's prediction is the point of its best row.
+// Pooled point rows at the descriptors' width with the descriptor shortcut, `channels` wide.
+NetworkOptions ShortcutRowOptions(int descriptor_dim, int channels) {
+  NetworkOptions options;
+  options.channels = channels;
+  options.embedding_dim = channels / 2;
+  options.trunk_channels = 40;
+  options.node_conditioning = false;
+  options.pooled_point_rows = true;
+  options.node_output_dim = descriptor_dim;
+  options.descriptor_shortcut = true;
+  return options;
+}
+
+// With several rows per point, both paths pool a point's rows, and a prediction is a point.
 TEST(NetworkCpuInferenceTest, KernelsMatchTorchOperatorsWithSeveralRowsPerPoint) {
   const RandomMap fixture = MakeRandomMap(11);
   const NetworkShape shape = testing_support::WithPrototypeRows(fixture.shape);
   const DescriptorMatrix descriptors = RandomDescriptors(333, shape.descriptor_dim, 5);
   const std::vector<uint32_t> images = {4, 0, 8, 4, 9, 7};  // 9: no image
-  NetworkOptions options;
-  options.channels = 48;
-  options.embedding_dim = 24;
-  options.trunk_channels = 40;
-  options.node_conditioning = false;
-  options.pooled_point_rows = true;
-  options.node_output_dim = shape.descriptor_dim;
-  options.descriptor_shortcut = true;
-  const Network network = testing_support::WithRandomProjections(Network(shape, options, 101), 201);
+  const Network network = testing_support::WithRandomProjections(
+      Network(shape, ShortcutRowOptions(shape.descriptor_dim, 48), 101), 201);
   EXPECT_EQ(NetworkInternals::Module(network)->point_rows.size(0), shape.point_row_offsets.back());
   for (const Visibility* mask : {static_cast<const Visibility*>(nullptr), &fixture.visibility}) {
     ExpectSamePredictions(
         network.Predict(descriptors, images, fixture.tree, mask),
         NetworkInternals::PredictWithTorch(network, descriptors, images, fixture.tree, mask));
   }
+}
+
+// With several rows per point a child pools its rows by log-sum-exp on both paths: a point whose
+// three rows each score 15.2 (their sum e^16.3) beats one whose single row scores 16, which the
+// maximum would choose.
+TEST(NetworkCpuInferenceTest, SeveralRowsPerPointPoolByLogSumExp) {
+  const RandomMap fixture = MakeRandomMap(12);
+  const NetworkShape shape = testing_support::WithPrototypeRows(fixture.shape);
+  // The projections start at zero: a row's score is <row, s x> + bias, x the unit descriptor.
+  Network network(shape, ShortcutRowOptions(shape.descriptor_dim, 16), 3);
+  const DescriptorMatrix descriptor = RandomDescriptors(1, shape.descriptor_dim, 4);
+  const PointCandidates candidates(fixture.tree, nullptr, {}, &shape.point_row_offsets);
+  // A point of one row and a point of three under different first-level children.
+  uint32_t single = 0, triple = 0;
+  while (candidates.RowsOfPoint(single).second - candidates.RowsOfPoint(single).first != 1) {
+    ++single;
+  }
+  const LabelTree::Label single_child = fixture.tree.LabelsOfPoint(single)[0];
+  while (candidates.RowsOfPoint(triple).second - candidates.RowsOfPoint(triple).first != 3 ||
+         fixture.tree.LabelsOfPoint(triple)[0] == single_child) {
+    ++triple;
+  }
+  {
+    torch::NoGradGuard no_grad;
+    torch::Tensor rows = NetworkInternals::Module(network)->point_rows;
+    const int64_t dim = shape.descriptor_dim;
+    rows.zero_();
+    rows.select(1, dim).fill_(-100);
+    const torch::Tensor unit =
+        torch::from_blob(const_cast<float*>(descriptor.data()), {dim}, torch::kFloat32);
+    const torch::Tensor direction = unit / unit.norm();
+    const auto give_score = [&](uint32_t point, float score) {
+      const auto [first, end] = candidates.RowsOfPoint(point);
+      for (uint32_t row = first; row < end; ++row) {
+        rows[row].narrow(0, 0, dim).copy_(direction * (score / kInitialShortcutScale));
+        rows[row][dim] = 0;
+      }
+    };
+    give_score(single, 16.0f);
+    give_score(triple, 15.2f);
+  }
+  const std::vector<uint32_t> no_image = {9};
+  EXPECT_EQ(network.Predict(descriptor, no_image, fixture.tree).point_indices(0, 0), triple);
+  EXPECT_EQ(NetworkInternals::PredictWithTorch(network, descriptor, no_image, fixture.tree, nullptr)
+                .point_indices(0, 0),
+            triple);
 }
 
 TEST(NetworkCpuInferenceTest, NodeOutputRowsGiveNoProbabilityToMissingChildren) {

@@ -174,15 +174,17 @@ struct FlatCandidates {
   torch::Tensor ranks, rows, groups;
   // Training only: the table rows of each row's observed point, true_ranks[i] of row
   // true_rows[i] ([T']; true_rows may be left undefined when there is one per row, in row
-  // order), and the child it falls under, [R]. The true child then scores that point alone (its
-  // best row), so that every level is pulled towards the point itself rather than towards all the
-  // points of its child (which an untrained level cannot tell apart); the other children still pool
-  // all their candidates.
+  // order), and the child it falls under, [R]. The true child then scores that point alone (the
+  // log-sum-exp of its rows), so that every level is pulled towards the point itself rather than
+  // towards all the points of its child (which an untrained level cannot tell apart); the other
+  // children still pool all their candidates.
   torch::Tensor true_ranks, true_groups, true_rows;
   // The dense form, for a log-sum-exp where most rows share their candidates (GatherCandidates
   // with `allow_dense`; ranks, rows and groups are then undefined): the distinct table rows [U],
   // the child of each [U], and whether each is a candidate of each row, [U, R].
   torch::Tensor dense_table_rows, dense_children, dense_mask;
+  // The flat lists' leaf rank of each candidate's point, [T] (kBestPoint pools a point's rows).
+  torch::Tensor points;
 };
 // The candidates of rows [begin, end): row r pools over the points under parent_nodes[r] that
 // slot slots[r] observes (PointCandidates::Under); rows whose parent is < 0 get none. Row ids in
@@ -192,13 +194,19 @@ FlatCandidates GatherCandidates(const PointCandidates& candidates, const int* sl
                                 const int64_t* parent_nodes, int64_t begin, int64_t end, int level,
                                 bool allow_dense = false);
 
-enum class Pooling { kLogSumExp, kMax };
-// Logits [R, branching] of pooled point rows: child c of row r scores the pooling of
-// <point_rows[rank], projected[r]> over its candidates; -inf where a child has none (a row with
-// no candidate at all gets 0 everywhere). Training pools by log-sum-exp; decoding by the maximum,
-// its dominant term, which costs no exponential per candidate. With `sparse_gradient` the table's
-// gradient is sparse (for lazy Adam): only the finest level with a choice trains the rows, and its
-// candidates are a few points per row, a sliver of a large map's table.
+// How a child pools the scores <point_rows[rank], projected[r]> of its candidates. Training takes
+// their log-sum-exp. Decoding takes the child's best point (kBestPoint), a point scoring its row
+// or, with several rows per point, their log-sum-exp. Each row's bias starts at -log of its
+// point's rows, so that a point starts as the log of its views' mean exponential: a soft vote of
+// its views, which on real maps ranks the true point first more often than its best view
+// (nearest-neighbour matching) or its views' mean (docs/decisions.md, "Pooling a point's views").
+enum class Pooling { kLogSumExp, kBestPoint };
+// Logits [R, branching] of pooled point rows, each child pooling its candidates' scores; -inf
+// where a child has none (a row with no candidate at all gets 0 everywhere). The score of a row's
+// true point (FlatCandidates' true_ranks) is the log-sum-exp of the point's own rows. With
+// `sparse_gradient` the table's gradient is sparse (for lazy Adam): only the finest level with a
+// choice trains the rows, and its candidates are a few points per row, a sliver of a large map's
+// table.
 torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Tensor& point_rows,
                                 const FlatCandidates& candidates, int64_t branching,
                                 Pooling pooling, bool sparse_gradient = false);

@@ -6,6 +6,7 @@
 #include <torch/torch.h>
 
 #include <Eigen/Core>
+#include <cmath>
 #include <sstream>
 #include <vector>
 
@@ -153,12 +154,25 @@ inline Network CopyAtFullPrecision(const Network& network) {
   return NetworkInternals::LoadFrom(input, "checkpoint", ComputeDevice::kCpu);
 }
 
-// The network with every matrix rounded to 8-bit rows and back: what a bundle keeps.
+// The network with every matrix rounded to 8-bit rows and back: what a bundle keeps. With several
+// rows per point, each point row is rounded with its bias plus log of its point's rows.
 inline Network AsStoredInABundle(const Network& network) {
   Network rounded = CopyAtFullPrecision(network);
   torch::NoGradGuard no_grad;
+  const std::vector<int64_t>& offsets = network.shape().point_row_offsets;
+  torch::Tensor log_rows = torch::zeros({offsets.empty() ? 0 : offsets.back()});
+  for (size_t rank = 0; rank + 1 < offsets.size(); ++rank) {
+    log_rows.narrow(0, offsets[rank], offsets[rank + 1] - offsets[rank])
+        .fill_(std::log(static_cast<double>(offsets[rank + 1] - offsets[rank])));
+  }
   for (auto& item : NetworkInternals::Module(rounded)->named_parameters()) {
-    if (item.value().dim() == 2) item.value().copy_(DequantizeRows(QuantizeRows(item.value())));
+    if (item.value().dim() != 2) continue;
+    const bool shifted = item.key() == "point_rows" && !offsets.empty();
+    torch::Tensor rows = item.value().clone();
+    if (shifted) rows.select(1, rows.size(1) - 1).add_(log_rows);
+    rows = DequantizeRows(QuantizeRows(rows));
+    if (shifted) rows.select(1, rows.size(1) - 1).sub_(log_rows);
+    item.value().copy_(rows);
   }
   return rounded;
 }

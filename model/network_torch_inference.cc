@@ -156,7 +156,7 @@ class TorchForwardPass {
       const FlatCandidates flat = GatherCandidates(*candidates_, slot_of_row_.data(),
                                                    parent_node_.data(), begin, end, depth);
       chunks.push_back(PooledPointLogits(projected.narrow(0, begin, end - begin), point_rows_, flat,
-                                         shape_.branching, Pooling::kMax));
+                                         shape_.branching, Pooling::kBestPoint));
       begin = end;
     }
     return torch::cat(chunks, 0);

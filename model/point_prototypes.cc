@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <algorithm>
+#include <cmath>
 #include <limits>
 
 #include "model/network_module.h"
@@ -129,7 +130,16 @@ void InitializePointRowsFromDescriptors(const Scene& scene, const std::vector<ui
     sums.index_add_(0, torch::tensor(rows, torch::kInt64), block.mm(projection));
   }
   point_rows.narrow(1, 0, rows_dim).copy_(NormalizeRows(sums).to(point_rows.device()));
-  point_rows.select(1, rows_dim).zero_();
+  // Each bias starts at -log of its point's rows, so that a point's log-sum-exp starts as the log
+  // of its rows' mean exponential and a point seen often is not favoured for its count.
+  torch::Tensor biases = torch::zeros({point_rows.size(0)});
+  float* bias = biases.data_ptr<float>();
+  for (uint32_t rank = 0; candidates.FirstRowOfRank(rank) < candidates.NumRows(); ++rank) {
+    const uint32_t first = candidates.FirstRowOfRank(rank);
+    const uint32_t end = candidates.FirstRowOfRank(rank + 1);
+    std::fill(bias + first, bias + end, -std::log(static_cast<float>(end - first)));
+  }
+  point_rows.select(1, rows_dim).copy_(biases.to(point_rows.device()));
 }
 
 }  // namespace hscloc

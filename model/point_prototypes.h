@@ -35,7 +35,8 @@ std::vector<int64_t> StartingRowOfObservations(const Scene& scene,
 // the points' class means, or their prototypes' means). Every level then starts as a
 // nearest-neighbour matcher among the candidates in that projected space and need only learn to
 // map a descriptor near A x, a smooth function of it; from random rows it must memorize which row
-// is whose, which took far longer than the budget at city scale (docs/decisions.md).
+// is whose, which took far longer than the budget at city scale (docs/decisions.md). Each bias
+// starts at -log of its point's rows (Pooling::kBestPoint).
 void InitializePointRowsFromDescriptors(const Scene& scene, const std::vector<uint32_t>& training,
                                         const PointCandidates& candidates, bool identity,
                                         torch::Tensor& point_rows);

@@ -82,8 +82,9 @@ torch::Tensor CellMaxima(const torch::Tensor& cells, const torch::Tensor& scores
   return maxima.to(scores.device());
 }
 
-// The score of each row's observed point [R]: its row's, or with several rows per point the best
-// of them (the maximum's gradient flows to that row alone).
+// The score of each row's observed point [R]: its row's, or with several rows per point the
+// log-sum-exp of them, as decoding scores a point (Pooling::kBestPoint); the gradient reaches each
+// of the point's rows by its share of the sum.
 torch::Tensor TrueScores(const torch::Tensor& projected, const torch::Tensor& point_rows,
                          const torch::Tensor& true_ranks, const torch::Tensor& true_rows,
                          bool sparse_gradient) {
@@ -91,42 +92,66 @@ torch::Tensor TrueScores(const torch::Tensor& projected, const torch::Tensor& po
   if (!true_rows.defined() || true_rows.size(0) == num_rows) {
     return (GatherRows(point_rows, true_ranks, sparse_gradient) * projected).sum(1);
   }
-  const torch::Tensor scores = CandidateScores(projected, point_rows, true_ranks,
-                                               true_rows.to(projected.device()), sparse_gradient);
-  const torch::Tensor cpu_rows = true_rows.to(torch::kCPU).contiguous();
-  const torch::Tensor cpu_scores = scores.detach().to(torch::kCPU).contiguous();
-  const int64_t* row = cpu_rows.data_ptr<int64_t>();
-  const float* score = cpu_scores.data_ptr<float>();
-  std::vector<int64_t> best(num_rows, -1);
-  for (int64_t i = 0; i < cpu_rows.numel(); ++i) {
-    if (best[row[i]] < 0 || score[i] > score[best[row[i]]]) best[row[i]] = i;
-  }
-  return scores.index_select(0, torch::tensor(best, torch::kInt64).to(scores.device()));
+  const torch::Tensor rows = true_rows.to(projected.device());
+  const torch::Tensor scores =
+      CandidateScores(projected, point_rows, true_ranks, rows, sparse_gradient);
+  // Each row's best score stabilizes the exponentials (a constant for the gradient).
+  const torch::Tensor best = CellMaxima(rows, scores, num_rows);
+  const torch::Tensor sums = torch::zeros({num_rows}, projected.options())
+                                 .index_add(0, rows, (scores - best.index_select(0, rows)).exp());
+  return sums.log() + best;
 }
 
-// Log-sum-exp or maximum per cell (row * branching + child) over the candidates one at a time:
+// Each (row, point) pair's log-sum-exp over its candidates, the pairs being the runs of equal
+// rows[i] and points[i] (GatherCandidates' order): the pairs' scores [P] and each pair's index of
+// its first candidate.
+std::pair<torch::Tensor, torch::Tensor> PointLogSumExps(const torch::Tensor& scores,
+                                                        const torch::Tensor& rows,
+                                                        const torch::Tensor& points) {
+  const int64_t count = scores.size(0);
+  const torch::Tensor starts =
+      torch::cat({torch::ones({1}, rows.options().dtype(torch::kBool)),
+                  rows.narrow(0, 1, count - 1).ne(rows.narrow(0, 0, count - 1)) |
+                      points.narrow(0, 1, count - 1).ne(points.narrow(0, 0, count - 1))});
+  const torch::Tensor pair = starts.to(torch::kInt64).cumsum(0) - 1;
+  const int64_t num_pairs = pair[count - 1].item<int64_t>() + 1;
+  const torch::Tensor best = CellMaxima(pair, scores, num_pairs);
+  const torch::Tensor sums = torch::zeros({num_pairs}, scores.options())
+                                 .index_add(0, pair, (scores - best.index_select(0, pair)).exp());
+  return {sums.log() + best, starts.nonzero().view({-1})};
+}
+
+// Log-sum-exp or best point per cell (row * branching + child) over the candidates one at a time:
 // [R, branching], -inf where a cell has none.
 torch::Tensor SparsePooling(const torch::Tensor& projected, const torch::Tensor& point_rows,
-                            const torch::Tensor& ranks, const torch::Tensor& rows,
-                            const torch::Tensor& groups, int64_t branching, Pooling pooling,
+                            const FlatCandidates& candidates, int64_t branching, Pooling pooling,
                             bool sparse_gradient) {
+  const torch::Device device = projected.device();
+  const torch::Tensor rows = candidates.rows.to(device);
   const int64_t num_rows = projected.size(0);
-  const torch::Tensor cells = rows * branching + groups;
-  const torch::Tensor scores = CandidateScores(projected, point_rows, ranks, rows, sparse_gradient);
-  // The maximum per cell: the pooled logit itself, or log-sum-exp's stabilizer (a constant for
-  // the gradient).
-  const torch::Tensor best = CellMaxima(cells, scores, num_rows * branching);
-  torch::Tensor logits = best;
-  if (pooling == Pooling::kLogSumExp) {
-    const torch::Tensor stable = best.clamp_min(-1e30);
-    const torch::Tensor sums =
-        torch::zeros({num_rows * branching}, projected.options())
-            .index_add(0, cells, (scores - stable.index_select(0, cells)).exp());
-    // Only cells without candidates sum to 0; they are set to -inf below.
-    logits = (sums.clamp_min(1e-30).log() + stable)
-                 .masked_fill(best.isneginf(), -std::numeric_limits<float>::infinity());
+  const torch::Tensor cells = rows * branching + candidates.groups.to(device);
+  const torch::Tensor scores =
+      CandidateScores(projected, point_rows, candidates.ranks.to(device), rows, sparse_gradient);
+  if (pooling == Pooling::kBestPoint) {
+    // Without the points' ranks each candidate stands for a point of its own.
+    if (!candidates.points.defined() || scores.size(0) == 0) {
+      return CellMaxima(cells, scores, num_rows * branching).view({num_rows, branching});
+    }
+    const auto [point_scores, first_of_point] =
+        PointLogSumExps(scores.detach(), rows, candidates.points.to(device));
+    return CellMaxima(cells.index_select(0, first_of_point), point_scores, num_rows * branching)
+        .view({num_rows, branching});
   }
-  return logits.view({num_rows, branching});
+  // The maximum per cell stabilizes the exponentials (a constant for the gradient).
+  const torch::Tensor best = CellMaxima(cells, scores, num_rows * branching);
+  const torch::Tensor stable = best.clamp_min(-1e30);
+  const torch::Tensor sums =
+      torch::zeros({num_rows * branching}, projected.options())
+          .index_add(0, cells, (scores - stable.index_select(0, cells)).exp());
+  // Only cells without candidates sum to 0; they are set to -inf below.
+  return (sums.clamp_min(1e-30).log() + stable)
+      .masked_fill(best.isneginf(), -std::numeric_limits<float>::infinity())
+      .view({num_rows, branching});
 }
 
 // Whether GatherCandidates gives the dense form: on a small table (every row against every table
@@ -208,24 +233,28 @@ FlatCandidates DenseCandidates(const PointCandidates& candidates,
 FlatCandidates FlatCandidatesOf(const PointCandidates& candidates,
                                 const std::vector<CandidateSpan>& spans,
                                 const std::vector<int64_t>& list_of_row, int level) {
-  std::vector<int64_t> ranks, rows, groups;
+  std::vector<int64_t> ranks, rows, groups, points;
   for (size_t row = 0; row < list_of_row.size(); ++row) {
     if (list_of_row[row] < 0) continue;
     const CandidateSpan& span = spans[list_of_row[row]];
     rows.insert(rows.end(), span.size, static_cast<int64_t>(row));
     // A span's table rows ascend and a point's rows are adjacent: its label is looked up once.
     uint32_t end_of_point = 0;
-    int64_t group = 0;
+    int64_t group = 0, point = 0;
     for (size_t i = 0; i < span.size; ++i) {
       if (i == 0 || span[i] >= end_of_point) {
-        end_of_point = candidates.FirstRowOfRank(candidates.RankOfRow(span[i]) + 1);
+        point = candidates.RankOfRow(span[i]);
+        end_of_point = candidates.FirstRowOfRank(static_cast<uint32_t>(point) + 1);
         group = candidates.LabelOfRow(span[i], level);
       }
       ranks.push_back(span[i]);
       groups.push_back(group);
+      points.push_back(point);
     }
   }
-  return {Int64Tensor(ranks), Int64Tensor(rows), Int64Tensor(groups), {}, {}, {}};
+  FlatCandidates flat{Int64Tensor(ranks), Int64Tensor(rows), Int64Tensor(groups)};
+  flat.points = Int64Tensor(points);
+  return flat;
 }
 
 }  // namespace
@@ -260,7 +289,6 @@ torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Ten
                                 const FlatCandidates& candidates, int64_t branching,
                                 Pooling pooling, bool sparse_gradient) {
   const torch::Device device = projected.device();
-  const int64_t num_rows = projected.size(0);
   torch::Tensor logits;
   if (candidates.dense_mask.defined()) {
     if (pooling != Pooling::kLogSumExp) {
@@ -268,9 +296,7 @@ torch::Tensor PooledPointLogits(const torch::Tensor& projected, const torch::Ten
     }
     logits = DenseLogSumExp(projected, point_rows, candidates, branching, sparse_gradient);
   } else {
-    logits = SparsePooling(projected, point_rows, candidates.ranks.to(device),
-                           candidates.rows.to(device), candidates.groups.to(device), branching,
-                           pooling, sparse_gradient);
+    logits = SparsePooling(projected, point_rows, candidates, branching, pooling, sparse_gradient);
   }
   if (candidates.true_ranks.defined()) {
     const torch::Tensor true_scores =

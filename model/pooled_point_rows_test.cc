@@ -90,10 +90,11 @@ TEST(PointCandidatesTest, SpansHoldEveryRowOfTheirPoints) {
   }
 }
 
-// In training the true child scores the observed point alone: with several rows, its best row.
-TEST(PooledPointLogitsTest, TheTruePointScoresItsBestRow) {
+// In training the true child scores the observed point alone: with several rows, the log-sum-exp
+// of them, and each of its rows gets its share of the gradient.
+TEST(PooledPointLogitsTest, TheTruePointScoresTheLogSumExpOfItsRows) {
   torch::manual_seed(6);
-  const torch::Tensor table = torch::randn({10, 5});
+  const torch::Tensor table = torch::randn({10, 5}).requires_grad_();
   const torch::Tensor projected = torch::randn({2, 5});
   FlatCandidates candidates{
       torch::tensor({0, 1, 4}, torch::kInt64), torch::tensor({0, 0, 1}, torch::kInt64),
@@ -102,16 +103,22 @@ TEST(PooledPointLogitsTest, TheTruePointScoresItsBestRow) {
       torch::tensor({2, 3, 7, 9}, torch::kInt64), torch::tensor({1, 0}, torch::kInt64),
       torch::tensor({0, 0, 0, 1}, torch::kInt64)};
   const auto score = [&](int64_t row, int64_t rank) {
-    return (table[rank] * projected[row]).sum().item<float>();
+    return static_cast<double>((table[rank] * projected[row]).sum().item<float>());
   };
   const torch::Tensor logits =
       PooledPointLogits(projected, table, candidates, 3, Pooling::kLogSumExp);
-  EXPECT_NEAR(logits[0][1].item<float>(), std::max({score(0, 2), score(0, 3), score(0, 7)}), 1e-5);
+  const double sum = std::exp(score(0, 2)) + std::exp(score(0, 3)) + std::exp(score(0, 7));
+  EXPECT_NEAR(logits[0][1].item<float>(), std::log(sum), 1e-5);
   EXPECT_NEAR(logits[1][0].item<float>(), score(1, 9), 1e-5);
   EXPECT_NEAR(logits[0][0].item<float>(), score(0, 0), 1e-5);
+  logits[0][1].backward();
+  for (const int64_t rank : {2, 3, 7}) {
+    const torch::Tensor expected = projected[0] * (std::exp(score(0, rank)) / sum);
+    EXPECT_TRUE(torch::allclose(table.grad()[rank], expected, 1e-4, 1e-5)) << "row " << rank;
+  }
 }
 
-TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
+TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrBestPoint) {
   torch::manual_seed(3);
   const int64_t rows = 3, dim = 4, branching = 5;
   const torch::Tensor table = torch::randn({10, dim + 1});
@@ -130,7 +137,7 @@ TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
   const torch::Tensor sum_logits =
       PooledPointLogits(projected, table, candidates, branching, Pooling::kLogSumExp);
   const torch::Tensor max_logits =
-      PooledPointLogits(projected, table, candidates, branching, Pooling::kMax);
+      PooledPointLogits(projected, table, candidates, branching, Pooling::kBestPoint);
   const float lowest = -std::numeric_limits<float>::infinity();
   const float s2 = score(0, 2), s7 = score(0, 7);
   EXPECT_NEAR(sum_logits[0][1].item<float>(), std::log(std::exp(s2) + std::exp(s7)), 1e-5);
@@ -151,6 +158,31 @@ TEST(PooledPointLogitsTest, PoolEachChildsCandidatesByLogSumExpOrMaximum) {
   EXPECT_NEAR(trained[0][1].item<float>(), s7, 1e-5);
   EXPECT_NEAR(trained[0][4].item<float>(), score(0, 5), 1e-5);
   EXPECT_NEAR(trained[2][2].item<float>(), score(2, 3), 1e-5);
+}
+
+// Decoding with several rows per point: a point scores the log-sum-exp of its rows, a child its
+// best point.
+TEST(PooledPointLogitsTest, TheBestPointPoolsItsOwnRows) {
+  torch::manual_seed(4);
+  const int64_t dim = 4, branching = 5;
+  const torch::Tensor table = torch::randn({10, dim});
+  const torch::Tensor projected = torch::randn({2, dim});
+  // Row 0: child 1 holds point 0 (rows 2, 3) and point 1 (row 7), child 4 point 2 (row 5); row 1:
+  // child 0 holds point 0 (row 2 alone in its image).
+  FlatCandidates candidates{torch::tensor({2, 3, 7, 5, 2}, torch::kInt64),
+                            torch::tensor({0, 0, 0, 0, 1}, torch::kInt64),
+                            torch::tensor({1, 1, 1, 4, 0}, torch::kInt64)};
+  candidates.points = torch::tensor({0, 0, 1, 2, 0}, torch::kInt64);
+  const auto score = [&](int64_t row, int64_t rank) {
+    return static_cast<double>((table[rank] * projected[row]).sum().item<float>());
+  };
+  const torch::Tensor logits =
+      PooledPointLogits(projected, table, candidates, branching, Pooling::kBestPoint);
+  const double point_0 = std::log(std::exp(score(0, 2)) + std::exp(score(0, 3)));
+  EXPECT_NEAR(logits[0][1].item<float>(), std::max(point_0, score(0, 7)), 1e-5);
+  EXPECT_NEAR(logits[0][4].item<float>(), score(0, 5), 1e-5);
+  EXPECT_NEAR(logits[1][0].item<float>(), score(1, 2), 1e-5);
+  EXPECT_EQ(logits[1][1].item<float>(), -std::numeric_limits<float>::infinity());
 }
 
 // Training gathers the candidates of rows that share them (a small map) in a dense form, without
@@ -189,9 +221,9 @@ TEST(PooledPointLogitsTest, TheDenseFormPoolsAsTheFlatLists) {
   EXPECT_TRUE(logits[1][3].isneginf().any().item<bool>()) << "a child the image does not see";
   EXPECT_TRUE(torch::allclose(table[0].grad(), table[1].grad(), 1e-5, 1e-6));
   EXPECT_TRUE(torch::allclose(projected[0].grad(), projected[1].grad(), 1e-5, 1e-6));
-  EXPECT_THROW(
-      PooledPointLogits(start_projected, start_table, dense, map.tree.branching(), Pooling::kMax),
-      std::logic_error);
+  EXPECT_THROW(PooledPointLogits(start_projected, start_table, dense, map.tree.branching(),
+                                 Pooling::kBestPoint),
+               std::logic_error);
 }
 
 // Logits and gradients against the definition, computed one candidate at a time, for rows that

@@ -13,6 +13,7 @@
 #include <numeric>
 
 #include "map/map_bundle.h"
+#include "model/network_module.h"
 #include "model/network_test_support.h"
 #include "model/point_candidates.h"
 #include "model/point_prototypes.h"
@@ -159,26 +160,35 @@ TEST_F(TinyCityTrainerTest, DescriptorShortcutStartsAsTheClassMeansAndEndsNoWors
   EXPECT_TRUE(result.network.options().masked_decoding);
 }
 
-// The held-out accuracy of matching each held-out observation to the point of its most similar
-// training observation among the points its image sees: what a shortcut network with a row per
-// training view starts as.
-double NearestTrainingViewAccuracy(const CityMap& map, const std::vector<uint32_t>& training,
-                                   const std::vector<uint32_t>& held_out) {
+// The held-out accuracy of what a shortcut network with a row per training view starts as: the
+// point, among those the image sees, of the largest mean(exp(s <x, v>)) over its training views v
+// (1 for a point without any: a zero row), x the unit descriptor and s the shortcut's starting
+// scale. Each level takes the child of the best point, so the levels together take the best.
+double SoftVoteOfTrainingViewsAccuracy(const CityMap& map, const std::vector<uint32_t>& training,
+                                       const std::vector<uint32_t>& held_out) {
   const Scene& scene = map.scene;
   DescriptorMatrix unit = scene.observation_descriptors;
   NormalizeRows(unit);
+  std::vector<std::vector<uint32_t>> views_of_point(scene.NumPoints());
+  for (const uint32_t view : training) {
+    views_of_point[scene.observation_point_indices[view]].push_back(view);
+  }
   size_t right = 0;
   for (const uint32_t observation : held_out) {
     const uint32_t image = scene.observation_image_indices[observation];
-    float best = -2;
+    double best = -1;
     uint32_t best_point = 0;
-    for (const uint32_t view : training) {
-      const uint32_t point = scene.observation_point_indices[view];
-      if (!map.visibility.IsVisible(image, point)) continue;
-      const float similarity = unit.row(observation).dot(unit.row(view));
-      if (similarity > best) {
-        best = similarity;
-        best_point = point;
+    for (const uint32_t* point = map.visibility.PointsBegin(image);
+         point != map.visibility.PointsEnd(image); ++point) {
+      double sum = 0;
+      for (const uint32_t view : views_of_point[*point]) {
+        sum += std::exp(kInitialShortcutScale * unit.row(observation).dot(unit.row(view)));
+      }
+      const auto views = static_cast<double>(views_of_point[*point].size());
+      const double vote = views == 0 ? 1.0 : sum / views;
+      if (vote > best) {
+        best = vote;
+        best_point = *point;
       }
     }
     right += best_point == scene.observation_point_indices[observation];
@@ -186,9 +196,9 @@ double NearestTrainingViewAccuracy(const CityMap& map, const std::vector<uint32_
   return static_cast<double>(right) / static_cast<double>(held_out.size());
 }
 
-// With as many rows per point as it has training views, the shortcut starts as the nearest
-// training view among the points each image sees (nearest-neighbour matching without its
-// filters); with fewer, a point's rows are spread over its views.
+// With as many rows per point as it has training views, the shortcut starts as a soft vote of
+// each point's training views among the points each image sees (SoftVoteOfTrainingViewsAccuracy);
+// with fewer, a point's rows are spread over its views.
 TEST_F(TinyCityTrainerTest, PointPrototypesStartAsThePointsOwnViews) {
   TrainerOptions options = ShortcutOptions(30, Map().scene);
   options.evaluations = 1;
@@ -208,7 +218,7 @@ TEST_F(TinyCityTrainerTest, PointPrototypesStartAsThePointsOwnViews) {
   ASSERT_FALSE(every_view.held_out_checks.empty());
   EXPECT_EQ(every_view.held_out_checks.front().iteration, 0);
   EXPECT_NEAR(every_view.held_out_checks.front().point_accuracy,
-              NearestTrainingViewAccuracy(Map(), training, held_out), one + 1e-9);
+              SoftVoteOfTrainingViewsAccuracy(Map(), training, held_out), one + 1e-9);
 
   // Two rows: each starting row is the mean of a part of its point's views, the parts disjoint
   // and both used, so a point of several views gets two distinct rows.
@@ -229,6 +239,16 @@ TEST_F(TinyCityTrainerTest, PointPrototypesStartAsThePointsOwnViews) {
   EXPECT_EQ(std::count(views_of_row.begin(), views_of_row.end(), 0),
             std::count(views_of_point.begin(), views_of_point.end(), 0))
       << "every row of a point with views starts from at least one";
+  // Each bias starts at -log of its point's rows: a point's pooled score is its rows' mean.
+  torch::Tensor table = torch::full({two_rows.back(), Map().scene.Dimension() + 1}, 7.0f);
+  InitializePointRowsFromDescriptors(Map().scene, training, candidates, true, table);
+  for (uint32_t point = 0; point < Map().scene.NumPoints(); ++point) {
+    const auto [first, end] = candidates.RowsOfPoint(point);
+    for (uint32_t row = first; row < end; ++row) {
+      EXPECT_FLOAT_EQ(table[row][Map().scene.Dimension()].item<float>(),
+                      -std::log(static_cast<float>(end - first)));
+    }
+  }
 }
 
 TEST_F(TinyCityTrainerTest, ReachesNinetyNinePercentOnItsTrainingObservations) {
