@@ -199,6 +199,15 @@ bool DefaultNodeConditioning(const NetworkOptions& options);
 // budget would not help. False with fewer than two checks.
 bool HeldOutConverged(const std::vector<double>& accuracies, const std::vector<double>& progress);
 
+// Whether `accuracy` is more than two standard errors of a check of `check_sample` observations
+// below `best`: a drop the check can tell from sampling noise.
+bool MeasurablyBelow(double accuracy, double best, size_t check_sample);
+
+// Whether training hands back its best checked network rather than its last (with keep_best):
+// where the last check is measurably below the best, or where the best is the untrained start
+// (iteration 0) and no later check reached it. False without checks.
+bool ReturnsBestNetwork(const std::vector<HeldOutCheck>& checks, size_t check_sample);
+
 // Whether observation `index` belongs to the held-out fraction (a hash of index and seed).
 bool IsHeldOutObservation(uint64_t index, double fraction, uint64_t seed);
 // The held-out observation indices of a scene, ascending.

@@ -25,6 +25,32 @@ TEST(TrainerTest, ConvergenceLooksAtWhatTheLastQuarterGained) {
   EXPECT_FALSE(HeldOutConverged({0.8}, {1.0}));
 }
 
+// The last network comes back unless its check is measurably below the best (two standard errors:
+// 4.6 points at 80 % on 301 observations), or the best is the untrained start and no later check
+// reached it.
+TEST(TrainerTest, TheBestNetworkComesBackOnlyForAMeasurableDropOrAnUnreachedStart) {
+  const auto checks = [](std::vector<double> accuracies) {
+    std::vector<HeldOutCheck> result;
+    for (size_t i = 0; i < accuracies.size(); ++i) {
+      result.push_back({static_cast<int64_t>(10 * i), 0.0, accuracies[i]});
+    }
+    return result;
+  };
+  EXPECT_TRUE(MeasurablyBelow(0.72, 0.80, 301));
+  EXPECT_FALSE(MeasurablyBelow(0.76, 0.80, 301));
+  EXPECT_TRUE(MeasurablyBelow(0.76, 0.80, 3000));
+  // A trained best, the last within noise of it: the last stays.
+  EXPECT_FALSE(ReturnsBestNetwork(checks({0.70, 0.80, 0.76}), 301));
+  // ... or measurably below it: the best comes back.
+  EXPECT_TRUE(ReturnsBestNetwork(checks({0.70, 0.80, 0.72}), 301));
+  // The start unreached, however close the last came: the start comes back.
+  EXPECT_TRUE(ReturnsBestNetwork(checks({0.80, 0.77, 0.72, 0.79}), 301));
+  // The start reached again later: the last stays.
+  EXPECT_FALSE(ReturnsBestNetwork(checks({0.80, 0.77, 0.80, 0.79}), 301));
+  EXPECT_FALSE(ReturnsBestNetwork(checks({0.80}), 301));
+  EXPECT_FALSE(ReturnsBestNetwork({}, 301));
+}
+
 TEST_F(TinyCityTrainerTest, KeepsTheBestNetworkOnTheHeldOutObservations) {
   // A rate too high for a constant schedule makes the held-out accuracy rise, then fall (0.23 at
   // iteration 40, 0.13 at 60, far more than two standard errors): the returned network is the

@@ -5,8 +5,6 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
-#include <algorithm>
-#include <cmath>
 #include <iostream>
 #include <map>
 
@@ -119,10 +117,11 @@ std::vector<SeedOutcome> LocalizeWithXFeat(const fs::path& data, const fs::path&
 // final pose starts from the winner's own row matches: 1.12 to 1.13 times on Lund over seeds 1 to
 // 5, with the default budget and with four minutes, where a start from the pose of the network's
 // matches gave 0.98 to 1.85 times; docs/decisions.md); and the network's held-out point accuracy
-// no lower than the nearest-class-mean matcher's beyond two standard errors of the held-out
-// sample: the network starts as a nearest-neighbour classifier over its points' training views,
-// within that of the class means, and the trainer returns to its best check only for a drop
-// larger than that. Skips without the set, XFeat's weights or COLMAP.
+// at least the nearest-class-mean matcher's. The network starts as a soft vote of each point's
+// training views (its rows' log-sum-exp), 5.3 points above the class means on Lund (80.4 against
+// 75.1 %) and 2.7 on fountain (89.1 against 86.4 %), 11 held-out observations or more, where a
+// point's best view alone was 1.3-3 points below them; training keeps its best check. Skips
+// without the set, XFeat's weights or COLMAP.
 void ExpectQueriesOverSeeds(const std::string& set, int network_fine, int nearest_neighbor_fine) {
   HSCLOC_REQUIRE_REAL_DATA(data, set);
   HSCLOC_REQUIRE_REAL_DATA(weights, "weights/xfeat");
@@ -139,11 +138,8 @@ void ExpectQueriesOverSeeds(const std::string& set, int network_fine, int neares
     }
     EXPECT_LE(counts[Matcher::kNetwork].median_position,
               1.25 * counts[Matcher::kNearestNeighbor].median_position);
-    const double p = outcome.class_mean_accuracy;
-    const double standard_error =
-        std::sqrt(p * (1 - p) / static_cast<double>(std::max<size_t>(1, outcome.num_held_out)));
-    EXPECT_GE(outcome.held_out_accuracy, p - 2 * standard_error)
-        << "class means " << p << " on " << outcome.num_held_out << " held-out observations";
+    EXPECT_GE(outcome.held_out_accuracy, outcome.class_mean_accuracy)
+        << "on " << outcome.num_held_out << " held-out observations";
   }
 }
 
