@@ -57,10 +57,6 @@ std::vector<int64_t> ReadInt64Vector(torch::serialize::InputArchive& archive,
                               tensor.data_ptr<int64_t>() + tensor.numel());
 }
 
-// Every parameter and buffer by its dotted name. With kInt8Rows each matrix (a parameter of two
-// dimensions: dense weights and the tables with a row per image, node or point) is stored as 8-bit
-// rows and their scales; vectors (biases, scales) and buffers stay at full precision, as does a
-// matrix holding a value that is not finite.
 // log(rows of the point) for each point row, [rows]; empty with one row per point.
 torch::Tensor LogRowsOfPoint(const NetworkShape& shape) {
   if (shape.point_row_offsets.empty()) return {};
@@ -82,19 +78,21 @@ torch::Tensor ShiftPointRowBiases(const NetworkShape& shape, torch::Tensor rows,
   return rows;
 }
 
+// Every parameter and buffer by its dotted name. With kInt8Rows each matrix (a parameter of two
+// dimensions: dense weights and the tables with a row per image, node or point) is stored as 8-bit
+// rows and their scales; vectors (biases, scales) and buffers stay at full precision, as does a
+// matrix holding a value that is not finite.
 void WriteWeights(const HscNet& module, const NetworkShape& shape, WeightStorage storage,
                   torch::serialize::OutputArchive& weights) {
   for (const auto& item : module->named_parameters()) {
     const std::string& name = item.key();
-    torch::Tensor stored = item.value().detach().cpu();
-    // A bias of -log(rows) would set its row's 8-bit scale and leave the weights a fraction of
-    // their precision; stored plus that log, it is near the weights' size.
-    if (storage == WeightStorage::kInt8Rows && name == kPointRowsName) {
-      stored = ShiftPointRowBiases(shape, stored, 1);
-    }
+    const torch::Tensor stored = item.value().detach().cpu();
     if (storage == WeightStorage::kInt8Rows && stored.dim() == 2 &&
         torch::isfinite(stored).all().item<bool>()) {
-      const Int8Rows rows = QuantizeRows(stored);
+      // A bias of -log(rows) would set its row's 8-bit scale and leave the weights a fraction of
+      // their precision; stored plus that log, it is near the weights' size.
+      const Int8Rows rows =
+          QuantizeRows(name == kPointRowsName ? ShiftPointRowBiases(shape, stored, 1) : stored);
       weights.write(name, rows.values);
       weights.write(name + kRowScalesSuffix, rows.scales);
     } else {
@@ -271,6 +269,8 @@ Network NetworkInternals::LoadFrom(torch::serialize::InputArchive& archive,
     ThrowInvalidArgument("{}: network weights do not match shape and options: {}", source,
                          error.what_without_backtrace());
   }
+  // Version 10's 8-bit point rows hold each bias plus log of its point's rows (WriteWeights);
+  // version 9's were trained for a point's best row and take the shift once.
   torch::Tensor scales;
   if (options.pooled_point_rows &&
       (format[1] < kFirstLogSumExpRowsVersion ||
