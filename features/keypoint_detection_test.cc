@@ -109,7 +109,9 @@ TEST(TileOriginsTest, FewestAlignedTilesThatOverlapEnoughAndCoverTheLength) {
       EXPECT_EQ(origins.back(), length - 640) << length << " " << overlap;
       for (size_t i = 0; i < origins.size(); ++i) {
         EXPECT_EQ(origins[i] % 8, 0);
-        if (i > 0) EXPECT_GE(origins[i - 1] + 640 - origins[i], overlap) << length;
+        if (i > 0) {
+          EXPECT_GE(origins[i - 1] + 640 - origins[i], overlap) << length;
+        }
       }
       // One tile fewer, at the largest stride the overlap allows, could not reach the end.
       const int stride = (640 - overlap) / 8 * 8;

@@ -20,7 +20,7 @@ namespace ei = HsclocKernelEigen::internal;
 using RowMajorMatrix = E::Matrix<float, E::Dynamic, E::Dynamic, E::RowMajor>;
 using ConstMatrixMap = E::Map<const RowMajorMatrix>;
 using Packet = ei::packet_traits<float>::type;
-constexpr int64_t kLanes = ei::unpacket_traits<Packet>::size;
+constexpr int64_t kLanes = ei::packet_traits<float>::size;
 
 // Element-wise work runs on whole packets only, the tail padded into a packet of its own. Eigen's
 // array expressions instead peel a scalar head until the data is aligned, and scalar exp() rounds

@@ -171,20 +171,20 @@ TORCH_MODULE(HscNet);
 struct FlatCandidates {
   // Candidate i: table row ranks[i] for row rows[i], under child groups[i] (its point's label at
   // the level).
-  torch::Tensor ranks, rows, groups;
+  torch::Tensor ranks{}, rows{}, groups{};
   // Training only: the table rows of each row's observed point, true_ranks[i] of row
   // true_rows[i] ([T']; true_rows may be left undefined when there is one per row, in row
   // order), and the child it falls under, [R]. The true child then scores that point alone (the
   // log-sum-exp of its rows), so that every level is pulled towards the point itself rather than
   // towards all the points of its child (which an untrained level cannot tell apart); the other
   // children still pool all their candidates.
-  torch::Tensor true_ranks, true_groups, true_rows;
+  torch::Tensor true_ranks{}, true_groups{}, true_rows{};
   // The dense form, for a log-sum-exp where most rows share their candidates (GatherCandidates
   // with `allow_dense`; ranks, rows and groups are then undefined): the distinct table rows [U],
   // the child of each [U], and whether each is a candidate of each row, [U, R].
-  torch::Tensor dense_table_rows, dense_children, dense_mask;
+  torch::Tensor dense_table_rows{}, dense_children{}, dense_mask{};
   // The flat lists' leaf rank of each candidate's point, [T] (kBestPoint pools a point's rows).
-  torch::Tensor points;
+  torch::Tensor points{};
 };
 // The candidates of rows [begin, end): row r pools over the points under parent_nodes[r] that
 // slot slots[r] observes (PointCandidates::Under); rows whose parent is < 0 get none. Row ids in
