@@ -58,13 +58,25 @@ VladEncoder TrainVlad(const Scene& scene, const FeatureReader& features,
                       const MapBuildOptions& options) {
   const size_t num_images = scene.NumImages();
   const size_t num_training = std::min<size_t>(num_images, options.max_vlad_training_images);
+  // Evenly spaced images cover the whole map rather than its first streets.
+  const auto spread = [num_images](size_t t, size_t count) { return t * num_images / count; };
   std::vector<DescriptorMatrix> training;
   training.reserve(num_training);
-  // Evenly spaced images cover the whole map rather than its first streets.
   for (size_t t = 0; t < num_training; ++t) {
-    training.push_back(features.Read(scene.images[t * num_images / num_training].name).descriptors);
+    training.push_back(features.Read(scene.images[spread(t, num_training)].name).descriptors);
   }
-  return VladEncoder::Train(training, options.vlad);
+  const size_t num_whitening = std::min<size_t>(num_images, options.max_vlad_whitening_images);
+  // The whitening of a city's thousands of images takes minutes, read image by image.
+  if (options.vlad.whitened_dim > 0) {
+    spdlog::info("vlad: codebook from {} images, whitening to at most {} dimensions from {} images",
+                 num_training, options.vlad.whitened_dim, num_whitening);
+  }
+  return VladEncoder::Train(
+      training, num_whitening,
+      [&](size_t t) {
+        return features.Read(scene.images[spread(t, num_whitening)].name).descriptors;
+      },
+      options.vlad);
 }
 
 GlobalDescriptorMatrix EncodeDatabase(const Scene& scene, const FeatureReader& features,
@@ -142,6 +154,8 @@ void WriteMetadata(const MapBuildInputs& inputs, const MapBuildOptions& options,
         {"whitened_dim", options.vlad.whitened_dim},
         {"power_normalization", options.vlad.power_normalization},
         {"training_images", std::min<size_t>(scene.NumImages(), options.max_vlad_training_images)},
+        {"whitening_images",
+         std::min<size_t>(scene.NumImages(), options.max_vlad_whitening_images)},
         {"seed", options.vlad.seed}};
   }
   metadata[map_metadata::kRetrieval] = retrieval_json;
@@ -162,6 +176,8 @@ void MapBuildOptions::Check() const {
   join.Check();
   THROW_CHECK_MSG(max_vlad_training_images >= 1, "max_vlad_training_images must be >= 1 (got {})",
                   max_vlad_training_images);
+  THROW_CHECK_MSG(max_vlad_whitening_images >= 1, "max_vlad_whitening_images must be >= 1 (got {})",
+                  max_vlad_whitening_images);
 }
 
 MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& options,

@@ -20,8 +20,11 @@ struct MapBuildOptions {
   VladOptions vlad;
   GlobalIndexOptions global_index;
   JoinOptions join;
-  // Database images whose features train the VLAD codebook and whitening; all images are encoded.
+  // Database images whose features train the VLAD codebook, and whose VLAD vectors train its
+  // whitening (read a batch at a time); all images are encoded. A whitening needs more images than
+  // dimensions, and a city's database wants thousands of dimensions (VladOptions::whitened_dim).
   int max_vlad_training_images = 1000;
+  int max_vlad_whitening_images = 4096;
   bool show_progress = true;
   void Check() const;
 };

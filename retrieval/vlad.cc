@@ -86,11 +86,18 @@ void VladOptions::Check() const {
 
 VladEncoder VladEncoder::Train(const std::vector<DescriptorMatrix>& images,
                                const VladOptions& options) {
+  return Train(
+      images, images.size(), [&images](size_t image) { return images[image]; }, options);
+}
+
+VladEncoder VladEncoder::Train(const std::vector<DescriptorMatrix>& codebook_images,
+                               size_t num_whitening_images, const ImageReader& read_whitening_image,
+                               const VladOptions& options) {
   options.Check();
   VladEncoder encoder;
   encoder.options_ = options;
-  encoder.TrainCodebook(images);
-  if (options.whitened_dim > 0) encoder.TrainWhitening(images);
+  encoder.TrainCodebook(codebook_images);
+  if (options.whitened_dim > 0) encoder.TrainWhitening(num_whitening_images, read_whitening_image);
   return encoder;
 }
 
@@ -142,12 +149,34 @@ void VladEncoder::TrainCodebook(const std::vector<DescriptorMatrix>& images) {
   centroid_half_squared_norms_ = 0.5f * centroids_.rowwise().squaredNorm();
 }
 
-void VladEncoder::TrainWhitening(const std::vector<DescriptorMatrix>& images) {
-  std::vector<size_t> nonempty;
-  for (size_t i = 0; i < images.size(); ++i) {
-    if (images[i].rows() > 0) nonempty.push_back(i);
+RowMajorMatrixXf VladEncoder::UnwhitenedVlads(size_t num_images,
+                                              const ImageReader& read_image) const {
+  // A batch of images is read, then encoded on every core, then the next is read: only the
+  // batch's descriptors and the VLAD vectors are held.
+  constexpr size_t kBatchImages = 256;
+  RowMajorMatrixXf vlads(static_cast<Eigen::Index>(num_images), centroids_.size());
+  Eigen::Index num_nonempty = 0;
+  std::vector<DescriptorMatrix> batch;
+  for (size_t begin = 0; begin < num_images; begin += kBatchImages) {
+    batch.clear();
+    for (size_t image = begin; image < std::min(num_images, begin + kBatchImages); ++image) {
+      DescriptorMatrix descriptors = read_image(image);
+      if (descriptors.rows() > 0) batch.push_back(std::move(descriptors));
+    }
+    ParallelFor(batch.size(), options_.num_threads, [&](size_t lo, size_t hi) {
+      for (size_t i = lo; i < hi; ++i) {
+        vlads.row(num_nonempty + static_cast<Eigen::Index>(i)) = EncodeUnwhitened(batch[i]);
+      }
+    });
+    num_nonempty += static_cast<Eigen::Index>(batch.size());
   }
-  const auto num_images = static_cast<int64_t>(nonempty.size());
+  vlads.conservativeResize(num_nonempty, Eigen::NoChange);
+  return vlads;
+}
+
+void VladEncoder::TrainWhitening(size_t num_whitening_images, const ImageReader& read_image) {
+  RowMajorMatrixXf vlads = UnwhitenedVlads(num_whitening_images, read_image);
+  const int64_t num_images = vlads.rows();
   if (num_images < 2) {
     ThrowInvalidArgument(
         "VLAD training: whitening needs at least 2 images with descriptors (got {}); set "
@@ -155,10 +184,6 @@ void VladEncoder::TrainWhitening(const std::vector<DescriptorMatrix>& images) {
         num_images);
   }
   const int64_t vlad_dim = centroids_.size();
-  RowMajorMatrixXf vlads(num_images, vlad_dim);
-  ParallelFor(nonempty.size(), options_.num_threads, [&](size_t begin, size_t end) {
-    for (size_t i = begin; i < end; ++i) vlads.row(i) = EncodeUnwhitened(images[nonempty[i]]);
-  });
   pca_mean_ = vlads.colwise().mean().transpose();
   vlads.rowwise() -= pca_mean_.transpose();
 

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <fstream>
+#include <numeric>
 #include <sstream>
 
 #include "util/random.h"
@@ -298,6 +299,49 @@ TEST(VladEncoderTest, WhiteningFromTheCovarianceWhenImagesOutnumberDimensions) {
     correct += same_place > other_place;
   }
   EXPECT_GE(correct, data.views.size() / 2 - 2);
+}
+
+TEST(VladEncoderTest, WhiteningFromImagesReadOneAtATime) {
+  // 40 places, 2 views each: the codebook from the first 10 views, the whitening from all 80,
+  // read in index order, once each.
+  const PlaceViews data = MakePlaceViews(40, 2, 15);
+  const VladOptions options = SmallOptions();
+  const std::vector<DescriptorMatrix> codebook_views(data.views.begin(), data.views.begin() + 10);
+  std::vector<size_t> reads;
+  const VladEncoder::ImageReader read = [&](size_t image) {
+    reads.push_back(image);
+    return data.views[image];
+  };
+  const VladEncoder streamed = VladEncoder::Train(codebook_views, data.views.size(), read, options);
+  std::vector<size_t> in_order(data.views.size());
+  std::iota(in_order.begin(), in_order.end(), size_t{0});
+  EXPECT_EQ(reads, in_order);
+  // More whitening images than codebook images allow more dimensions than the codebook's images.
+  EXPECT_EQ(streamed.output_dim(), options.whitened_dim);
+  EXPECT_EQ(VladEncoder::Train(codebook_views, options).output_dim(), 9);
+
+  // With the codebook's own images it is Train's encoder, byte for byte.
+  std::ostringstream from_vector;
+  VladEncoder::Train(codebook_views, options).Write(from_vector);
+  std::ostringstream from_reader;
+  VladEncoder::Train(
+      codebook_views, codebook_views.size(), [&](size_t image) { return codebook_views[image]; },
+      options)
+      .Write(from_reader);
+  EXPECT_EQ(from_vector.str(), from_reader.str());
+
+  // A whitening image of another dimension is named.
+  try {
+    VladEncoder::Train(
+        codebook_views, 3,
+        [&](size_t image) {
+          return image == 2 ? DescriptorMatrix::Ones(10, kDim + 1) : data.views[image];
+        },
+        options);
+    FAIL() << "no exception";
+  } catch (const std::invalid_argument& error) {
+    EXPECT_THAT(error.what(), HasSubstr("dimension 33"));
+  }
 }
 
 TEST(VladEncoderTest, TrainRejectsBadInput) {
