@@ -56,7 +56,8 @@ std::vector<AblationVariant> StandardAblationVariants() {
   std::vector<AblationVariant> variants(7);
   // The paper's pipeline retrieves with the global descriptor alone and keeps the winning image's
   // pose; each of the first five variants switches one thing of it, the sixth adds the votes'
-  // round, the last is hscloc's default.
+  // round, the last is hscloc's default (with the deeper global round where the votes are weak
+  // too).
   for (size_t i = 0; i < 6; ++i) variants[i].options.final_pose = FinalPose::kWinner;
   for (size_t i = 0; i < 5; ++i) variants[i].options.retrieval = RetrievalMode::kGlobal;
   variants[0].name = "top-10, visibility filter (paper)";
@@ -71,6 +72,7 @@ std::vector<AblationVariant> StandardAblationVariants() {
   variants[4].options.visibility_masked_decoding = true;
   variants[5].name = "top-10, then point votes";
   variants[5].options.retrieval = RetrievalMode::kGlobalThenVotes;
+  variants[5].options.deeper_global_candidates = 0;
   variants[6].name = "top-10, then point votes, pooled final pose (default)";
   variants[6].options.retrieval = RetrievalMode::kGlobalThenVotes;
   variants[6].options.final_pose = FinalPose::kPooled;

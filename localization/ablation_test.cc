@@ -50,9 +50,11 @@ class AblationTest : public ::testing::Test {
     delete dir_;
   }
 
+  // One retrieval round, so that each variant poses exactly its top_k.
   static LocalizerOptions NearestNeighbor() {
     LocalizerOptions options;
     options.matcher = Matcher::kNearestNeighbor;
+    options.retrieval = RetrievalMode::kGlobal;
     return options;
   }
   static std::vector<AblationVariant> Variants() {

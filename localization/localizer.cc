@@ -161,14 +161,25 @@ PoseResult Localizer::Localize(const LocalizationQuery& query) const {
   return Localize(query, options_);
 }
 
-std::vector<LocalizationCandidate> Localizer::Retrieve(const LocalizationQuery& query,
-                                                       const LocalizerOptions& options) const {
+namespace {
+
+bool AlreadyTried(const std::vector<LocalizationCandidate>& tried, uint32_t image_index) {
+  return std::any_of(tried.begin(), tried.end(), [&](const LocalizationCandidate& candidate) {
+    return candidate.image_index == image_index;
+  });
+}
+
+}  // namespace
+
+std::vector<LocalizationCandidate> Localizer::Retrieve(
+    const Eigen::VectorXf& global_descriptor, int count,
+    const std::vector<LocalizationCandidate>& tried) const {
   std::vector<LocalizationCandidate> candidates;
-  if (!query.global_descriptor.has_value() && query.descriptors.rows() == 0) return candidates;
-  const Eigen::VectorXf global = query.global_descriptor.has_value()
-                                     ? *query.global_descriptor
-                                     : map_->vlad()->Encode(query.descriptors);
-  for (const RetrievalHit& hit : map_->global_index().Search(global, options.top_k)) {
+  if (global_descriptor.size() == 0) return candidates;
+  const int wanted = count + static_cast<int>(tried.size());
+  for (const RetrievalHit& hit : map_->global_index().Search(global_descriptor, wanted)) {
+    if (static_cast<int>(candidates.size()) == count) break;
+    if (AlreadyTried(tried, hit.image_index)) continue;
     LocalizationCandidate candidate;
     candidate.image_index = static_cast<uint32_t>(hit.image_index);
     candidate.image_id = map_->scene().images[candidate.image_index].image_id;
@@ -212,11 +223,7 @@ std::vector<LocalizationCandidate> Localizer::RetrieveByVotes(
       point_votes_->Search(points, weights, options.top_k + static_cast<int>(tried.size()));
   for (const RetrievalHit& hit : hits) {
     if (static_cast<int>(candidates.size()) == options.top_k) break;
-    const bool already_tried =
-        std::any_of(tried.begin(), tried.end(), [&](const LocalizationCandidate& candidate) {
-          return candidate.image_index == hit.image_index;
-        });
-    if (already_tried) continue;
+    if (AlreadyTried(tried, hit.image_index)) continue;
     LocalizationCandidate candidate;
     candidate.image_index = hit.image_index;
     candidate.image_id = map_->scene().images[hit.image_index].image_id;
@@ -402,13 +409,19 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   Evaluation evaluation;
   PoseResult& result = evaluation.result;
   const bool votes_only = options.retrieval == RetrievalMode::kVotes;
+  Eigen::VectorXf global_descriptor;
   {
     ScopedTimer timer(&result.timings.retrieval_ms);
     if (votes_only) {
       ScopedTimer votes_timer(&result.timings.votes_ms);
       result.candidates = RetrieveByVotes(query, options, {}, evaluation.network_cache);
     } else {
-      result.candidates = Retrieve(query, options);
+      if (query.global_descriptor.has_value()) {
+        global_descriptor = *query.global_descriptor;
+      } else if (query.descriptors.rows() > 0) {
+        global_descriptor = map_->vlad()->Encode(query.descriptors);
+      }
+      result.candidates = Retrieve(global_descriptor, options.top_k, {});
     }
   }
   // A query left without a pose answers with its first candidate's, retrieval's best guess.
@@ -437,6 +450,19 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
       result.candidates.insert(result.candidates.end(), voted.begin(), voted.end());
     }
     EvaluateRound(query, options, first_voted, evaluation);
+  }
+  if (options.retrieval == RetrievalMode::kGlobalThenVotes &&
+      options.deeper_global_candidates > 0 && weak()) {
+    const size_t first_deeper = result.candidates.size();
+    {
+      ScopedTimer timer(&result.timings.retrieval_ms);
+      std::vector<LocalizationCandidate> deeper =
+          Retrieve(global_descriptor, options.deeper_global_candidates, result.candidates);
+      result.candidates.insert(result.candidates.end(), deeper.begin(), deeper.end());
+    }
+    if (result.candidates.size() > first_deeper) {
+      EvaluateRound(query, options, first_deeper, evaluation);
+    }
   }
   const size_t num_candidates = result.candidates.size();
   if (num_candidates == 0) return fail("retrieval found no database image");

@@ -4,7 +4,8 @@
 //                  brings) -> the top-K database images of the map's index, the candidates;
 //                  when none of them yields a pose (RetrievalMode::kGlobalThenVotes), a second
 //                  round: the network's predictions without an image id vote for the images
-//                  that observe the predicted points, and their top-K not yet tried follow
+//                  that observe the predicted points, and their top-K not yet tried follow;
+//                  where that round is weak too, the global ranking's next candidates
 //   Match          the hierarchical classification network predicts, for each keypoint and each
 //                  candidate, the 3D point it sees (the descriptor-only layers once, the K image
 //                  ids as one batch); or, as the explicit-matching baseline, mutual nearest
@@ -104,6 +105,11 @@ struct LocalizerOptions {
   // kGlobalThenVotes: a best candidate with fewer inliers than this calls for the votes' round,
   // as does a first round without any pose (even at 0).
   int vote_retrieval_below_inliers = 30;
+  // kGlobalThenVotes: where the best candidate is still that weak after the votes' round (or,
+  // without a network, after the first), the global ranking's next candidates not yet tried,
+  // this many, are one more round: a night query's right image often ranks just past the first
+  // top_k (hloc retrieves 50 for Aachen's night). 0: none.
+  int deeper_global_candidates = 20;
   // The votes' pass without an image id scores every point of the map at its first level; on a
   // map of at least PointRowIndex::kMinPoints points it probes the point row index instead
   // (model/point_row_index.h), unless this asks for the exact pass.
@@ -224,8 +230,10 @@ class Localizer {
   void CheckQuery(const LocalizationQuery& query) const;
 
   // The stages (see the top of this file).
-  std::vector<LocalizationCandidate> Retrieve(const LocalizationQuery& query,
-                                              const LocalizerOptions& options) const;
+  // The global ranking's first `count` images except those in `tried`.
+  std::vector<LocalizationCandidate> Retrieve(
+      const Eigen::VectorXf& global_descriptor, int count,
+      const std::vector<LocalizationCandidate>& tried) const;
   // The top_k images the network's votes rank highest, except those in `tried`. `network_cache`
   // holds the query's descriptor-only layers across the network's calls.
   std::vector<LocalizationCandidate> RetrieveByVotes(

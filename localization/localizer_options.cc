@@ -72,6 +72,9 @@ void LocalizerOptions::Check() const {
   THROW_CHECK_MSG(vote_retrieval_below_inliers >= 0,
                   "LocalizerOptions.vote_retrieval_below_inliers = {}",
                   vote_retrieval_below_inliers);
+  THROW_CHECK_MSG(deeper_global_candidates >= 0,
+                  "LocalizerOptions.deeper_global_candidates = {} (0: none)",
+                  deeper_global_candidates);
   THROW_CHECK_MSG(first_look_samples >= 0, "LocalizerOptions.first_look_samples = {} (0: none)",
                   first_look_samples);
   nearest_neighbor.Check();

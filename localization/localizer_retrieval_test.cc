@@ -189,6 +189,7 @@ TEST_F(SmallCityLocalizerTest, TheVotesRoundFollowsOnlyAFirstRoundBelowTheThresh
   const auto candidates_with_threshold = [&](int threshold) {
     LocalizerOptions options;
     options.vote_retrieval_below_inliers = threshold;
+    options.deeper_global_candidates = 0;  // the votes' round alone
     return localizer().Localize(query, options).candidates.size();
   };
   // The threshold applies to the best candidate's own inliers, not to a pooled final pose's.
@@ -338,6 +339,69 @@ TEST(LocalizerTest, RetrievalModeNamesRoundTrip) {
   options.first_look_samples = -1;
   EXPECT_THAT(testing::InvalidArgumentMessage([&] { options.Check(); }),
               HasSubstr("first_look_samples = -1"));
+}
+
+// Without a network there are no votes: where the global ranking's first top_k are weak, its next
+// deeper_global_candidates follow. A query's global descriptor is bent towards the misleading one
+// until the image its own descriptor ranks first sits 16th: the first round misses it, the deeper
+// one finds it.
+TEST_F(SmallCityLocalizerTest, TheGlobalRankingsNextImagesFollowWhereEveryEarlierRoundIsWeak) {
+  const auto map =
+      LocalizationMap::Load(*testing::TrainedSmallCityDir() / "map", {.load_observations = true});
+  LocalizerOptions options;
+  options.matcher = Matcher::kNearestNeighbor;
+  const Localizer nearest_only(map, nullptr, options);
+  LocalizerOptions no_deeper = options;
+  no_deeper.deeper_global_candidates = 0;
+  const GlobalDescriptorMatrix& database = map->global_descriptors();
+  const auto rank_of = [&](const Eigen::VectorXf& global, int64_t image) {
+    const Eigen::VectorXf scores = database * global;
+    return (scores.array() > scores[image]).count();
+  };
+  const QuerySet& set = Set("day");
+  int recovered = 0;
+  const size_t count = std::min<size_t>(set.queries.size(), 6);
+  for (size_t q = 0; q < count; ++q) {
+    SCOPED_TRACE(set.queries[q].name);
+    LocalizationQuery query = set.queries[q];
+    const Eigen::VectorXf own = map->vlad()->Encode(query.descriptors);
+    int64_t right = 0;
+    (database * own).maxCoeff(&right);
+    const Eigen::VectorXf misleading =
+        MisleadingGlobalDescriptor(*map, set.ground_truth[q].cam_from_world);
+    // The right image's rank falls as the blend leans towards the misleading descriptor.
+    double low = 0;
+    double high = 1;
+    for (int step = 0; step < 40; ++step) {
+      const double middle = 0.5 * (low + high);
+      const Eigen::VectorXf blend = ((1 - middle) * own + middle * misleading).normalized();
+      (rank_of(blend, right) < 15 ? low : high) = middle;
+    }
+    query.global_descriptor = ((1 - high) * own + high * misleading).normalized();
+    const int64_t rank = rank_of(*query.global_descriptor, right);
+    if (rank < 10 || rank >= 30) continue;  // ties between images; no such query here
+
+    const PoseResult first_only = nearest_only.Localize(query, no_deeper);
+    const PoseResult deeper = nearest_only.Localize(query);
+    ASSERT_EQ(first_only.candidates.size(), 10u);
+    EXPECT_EQ(first_only.timings.rounds, 1);
+    if (WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], first_only)) {
+      EXPECT_EQ(deeper.candidates.size(), 10u) << "a strong first round needs no deeper one";
+      continue;
+    }
+    ASSERT_EQ(deeper.candidates.size(), 30u);
+    EXPECT_EQ(deeper.timings.rounds, 2);
+    const std::vector<RetrievalHit> ranking =
+        map->global_index().Search(*query.global_descriptor, 30);
+    for (size_t k = 0; k < 30; ++k) {
+      EXPECT_EQ(deeper.candidates[k].image_index, ranking[k].image_index) << k;
+      EXPECT_EQ(deeper.candidates[k].source, CandidateSource::kGlobalDescriptor);
+    }
+    EXPECT_TRUE(WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], deeper))
+        << deeper.failure_reason;
+    recovered += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], deeper);
+  }
+  EXPECT_GE(recovered, 3) << "the blend must mislead the first round for the test to mean anything";
 }
 
 }  // namespace

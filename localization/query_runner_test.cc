@@ -146,8 +146,10 @@ TEST_F(QueryRunnerTest, TimingsFileHasALineOfStagesPerQueryAndResumesAfterTheFir
     EXPECT_EQ(cells[0], ImageBasename(queries[rows].name));
     const LocalizationQuery query = LoadQuery(queries[rows], *features);
     EXPECT_EQ(std::stol(cells[2]), query.keypoints.rows());
-    EXPECT_EQ(std::stoi(cells[3]), 1) << "the nearest-neighbour matcher without a network has "
-                                         "no votes' round";
+    // Without a network there is no votes' round: the first, and a deeper global one where the
+    // first was weak.
+    EXPECT_GE(std::stoi(cells[3]), 1);
+    EXPECT_LE(std::stoi(cells[3]), 2);
     const double total = std::stod(cells[11]);
     EXPECT_GT(total, 0);
     double stages = 0;

@@ -24,7 +24,7 @@ struct StageTimings {
   // initializes the stages.
   double votes_ms = 0;   // of retrieval_ms: the network without an image id and the vote count
   double refine_ms = 0;  // of pose_ms: the round winner's rival keypoints and the pooled pose
-  int rounds = 0;        // retrieval rounds evaluated: 1, or 2 when the votes' round ran
+  int rounds = 0;  // retrieval rounds evaluated: 1, then one for the votes and one deeper global
 };
 
 // The timings by name, in the order of the query path, for tables and CSV columns.

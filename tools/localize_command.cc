@@ -124,14 +124,21 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->add_option("--retrieval", arguments->retrieval,
                    "global: the global descriptor (VLAD) alone (the paper); global-then-votes: "
                    "when its candidates yield no pose with --vote-below-inliers, the network's "
-                   "votes for the images observing its predicted points add --top-k more; "
-                   "votes: the votes alone")
+                   "votes for the images observing its predicted points add --top-k more, "
+                   "and where those are weak too the global ranking's next "
+                   "--deeper-global-candidates; votes: the votes alone")
       ->check(CLI::IsMember({"global", "global-then-votes", "votes"}))
       ->capture_default_str();
   command
       ->add_option("--vote-below-inliers", options.vote_retrieval_below_inliers,
                    "global-then-votes: inliers of the best candidate below which the votes' round "
                    "runs")
+      ->capture_default_str();
+  command
+      ->add_option("--deeper-global-candidates", options.deeper_global_candidates,
+                   "global-then-votes: the global ranking's next images, not yet tried, posed "
+                   "where the votes' round is weak too (0: none)")
+      ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   command->add_flag("--exact-votes", options.exact_votes,
                     "Score every point of the map in the votes' pass, also on a map large enough "
