@@ -261,7 +261,6 @@ void WriteTargets(const json& results, std::ostringstream& md) {
 
 // The machine's GEMM peak, and the network against its floor.
 void WriteMachineLimit(const json& results, std::ostringstream& md) {
-  const json& peaks = CityPeaks(results);
   const json& city = results["city"];
   md << "## The machine's limit\n\n| fp32, all cores (products: 2048^3) | GFLOPS |\n| --- | --- "
         "|\n";
