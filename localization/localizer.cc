@@ -396,6 +396,41 @@ void Localizer::EvaluateRound(const LocalizationQuery& query, const LocalizerOpt
   RefineRoundWinner(query, options, begin, evaluation);
 }
 
+void Localizer::EvaluateFurtherRounds(const LocalizationQuery& query,
+                                      const LocalizerOptions& options,
+                                      const Eigen::VectorXf& global_descriptor,
+                                      Evaluation& evaluation) const {
+  PoseResult& result = evaluation.result;
+  const auto weak = [&] {
+    const int best = Choose(result.candidates);
+    return best < 0 || result.candidates[best].num_inliers < options.vote_retrieval_below_inliers;
+  };
+  if (UsesVotes(options) && weak()) {
+    const size_t first_voted = result.candidates.size();
+    {
+      ScopedTimer timer(&result.timings.retrieval_ms);
+      ScopedTimer votes_timer(&result.timings.votes_ms);
+      std::vector<LocalizationCandidate> voted =
+          RetrieveByVotes(query, options, result.candidates, evaluation.network_cache);
+      result.candidates.insert(result.candidates.end(), voted.begin(), voted.end());
+    }
+    EvaluateRound(query, options, first_voted, evaluation);
+  }
+  if (options.retrieval == RetrievalMode::kGlobalThenVotes &&
+      options.deeper_global_candidates > 0 && weak()) {
+    const size_t first_deeper = result.candidates.size();
+    {
+      ScopedTimer timer(&result.timings.retrieval_ms);
+      std::vector<LocalizationCandidate> deeper =
+          Retrieve(global_descriptor, options.deeper_global_candidates, result.candidates);
+      result.candidates.insert(result.candidates.end(), deeper.begin(), deeper.end());
+    }
+    if (result.candidates.size() > first_deeper) {
+      EvaluateRound(query, options, first_deeper, evaluation);
+    }
+  }
+}
+
 PoseResult Localizer::Localize(const LocalizationQuery& query,
                                const LocalizerOptions& options) const {
   if (options.matcher == Matcher::kAuto) {
@@ -436,34 +471,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   if (num_keypoints < 4) return fail(fmt::format("the query has {} keypoints", num_keypoints));
   EvaluateRound(query, options, 0, evaluation);
 
-  const auto weak = [&] {
-    const int best = Choose(result.candidates);
-    return best < 0 || result.candidates[best].num_inliers < options.vote_retrieval_below_inliers;
-  };
-  if (!votes_only && UsesVotes(options) && weak()) {
-    const size_t first_voted = result.candidates.size();
-    {
-      ScopedTimer timer(&result.timings.retrieval_ms);
-      ScopedTimer votes_timer(&result.timings.votes_ms);
-      std::vector<LocalizationCandidate> voted =
-          RetrieveByVotes(query, options, result.candidates, evaluation.network_cache);
-      result.candidates.insert(result.candidates.end(), voted.begin(), voted.end());
-    }
-    EvaluateRound(query, options, first_voted, evaluation);
-  }
-  if (options.retrieval == RetrievalMode::kGlobalThenVotes &&
-      options.deeper_global_candidates > 0 && weak()) {
-    const size_t first_deeper = result.candidates.size();
-    {
-      ScopedTimer timer(&result.timings.retrieval_ms);
-      std::vector<LocalizationCandidate> deeper =
-          Retrieve(global_descriptor, options.deeper_global_candidates, result.candidates);
-      result.candidates.insert(result.candidates.end(), deeper.begin(), deeper.end());
-    }
-    if (result.candidates.size() > first_deeper) {
-      EvaluateRound(query, options, first_deeper, evaluation);
-    }
-  }
+  if (!votes_only) EvaluateFurtherRounds(query, options, global_descriptor, evaluation);
   const size_t num_candidates = result.candidates.size();
   if (num_candidates == 0) return fail("retrieval found no database image");
   {

@@ -239,6 +239,12 @@ class Localizer {
   std::vector<LocalizationCandidate> RetrieveByVotes(
       const LocalizationQuery& query, const LocalizerOptions& options,
       const std::vector<LocalizationCandidate>& tried, DescriptorLayerCache& network_cache) const;
+  // The rounds after the global descriptor's first (RetrievalMode::kGlobalThenVotes): the votes'
+  // where the best candidate so far is below vote_retrieval_below_inliers, then the global
+  // ranking's next deeper_global_candidates images where it still is.
+  void EvaluateFurtherRounds(const LocalizationQuery& query, const LocalizerOptions& options,
+                             const Eigen::VectorXf& global_descriptor,
+                             Evaluation& evaluation) const;
   // Whether the query's retrieval has a votes round: always, after a weak first one, or never.
   bool UsesVotes(const LocalizerOptions& options) const;
   // The matches of candidates [begin, end), one entry each.
