@@ -7,6 +7,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <numeric>
 #include <utility>
 
 #include "pose/absolute_pose_estimator.h"
@@ -36,11 +37,23 @@ SolverOutcome RunLoRansacSolver(std::vector<NormalizedCorrespondence> correspond
                                 const AbsolutePoseOptions& options) {
   Random random(options.seed);
   // Keypoints often arrive in order (by image row, by retrieved image); the sequential test needs
-  // every prefix to be a random subset.
+  // every prefix to be a random subset. PROSAC samples by the order they came in.
+  std::vector<int> best_first(correspondences.size());
+  std::iota(best_first.begin(), best_first.end(), 0);
   for (int i = static_cast<int>(correspondences.size()) - 1; i > 0; --i) {
-    std::swap(correspondences[i], correspondences[random.UniformInt(i + 1)]);
+    const auto j = static_cast<int>(random.UniformInt(i + 1));
+    std::swap(correspondences[i], correspondences[j]);
+    std::swap(best_first[i], best_first[j]);
   }
   RansacOptions ransac_options;
+  if (options.progressive_sampling) {
+    // best_first[position] is the rank of the correspondence now at that position.
+    ransac_options.data_best_first.resize(best_first.size());
+    for (size_t position = 0; position < best_first.size(); ++position) {
+      ransac_options.data_best_first[best_first[position]] = static_cast<int>(position);
+    }
+    ransac_options.progressive_growth_samples = options.max_iterations;
+  }
   ransac_options.max_iterations = options.max_iterations;
   ransac_options.stop_past_inliers = options.stop_sampling_past_inliers;
   ransac_options.confidence = options.confidence;

@@ -53,6 +53,10 @@ struct AbsolutePoseOptions {
   // best so far would have (a candidate that cannot win is not sampled 5000 times). The LO-RANSAC
   // solver only.
   int inliers_to_beat = 0;
+  // PROSAC (Chum and Matas, CVPR 2005): the correspondences come best first (by a matcher's
+  // confidence), and samples are drawn from the best ones first, from a share that grows to all of
+  // them over max_iterations samples. False: uniform sampling. The LO-RANSAC solver only.
+  bool progressive_sampling = false;
   Solver solver = Solver::kLoRansac;
   // Refit each new best hypothesis to its inliers during RANSAC (LO-RANSAC).
   bool local_optimization = true;

@@ -7,8 +7,12 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <limits>
+#include <utility>
+#include <vector>
 
+#include "util/check.h"
 #include "util/random.h"
 
 namespace hscloc {
@@ -36,6 +40,10 @@ struct RansacOptions {
   // Only a hypothesis with more inliers than this is of use; the adaptive bound assumes at least
   // that inlier ratio from the start. 0: none.
   int inliers_to_beat = 0;
+  // PROSAC's sampling where not empty: the data's indices, best first (ProgressiveSampler), and
+  // the samples over which the drawn prefix grows to all of them. Empty: uniform sampling.
+  std::vector<int> data_best_first;
+  int progressive_growth_samples = 0;
 };
 
 template <typename Model>
@@ -68,6 +76,61 @@ std::array<int, kSampleSize> DrawSample(int num_data, Random& random) {
   return sample;
 }
 
+// PROSAC's sampling (Chum and Matas, "Matching with PROSAC - progressive sample consensus", CVPR
+// 2005). With the data ranked best first, the t-th sample is drawn from the best n(t), and holds
+// the n-th of them until n grows: n grows so that the prefix of n is sampled about as often as
+// uniform sampling over `growth_samples` draws would sample it, and past them the draw is
+// uniform. Where the best-ranked data are more often inliers, an all-inlier sample comes far
+// sooner; where the ranking says nothing, the first draws are merely less varied.
+template <int kSampleSize>
+class ProgressiveSampler {
+ public:
+  ProgressiveSampler(std::vector<int> data_best_first, int growth_samples)
+      : data_best_first_(std::move(data_best_first)) {
+    const auto num_data = static_cast<double>(data_best_first_.size());
+    // T_n of the paper for n = kSampleSize: the uniform draws among growth_samples that fall
+    // wholly within the best kSampleSize.
+    expected_draws_ = growth_samples;
+    for (int i = 0; i < kSampleSize; ++i) {
+      expected_draws_ *= static_cast<double>(kSampleSize - i) / (num_data - i);
+    }
+  }
+
+  std::array<int, kSampleSize> Draw(Random& random) {
+    ++num_drawn_;
+    const auto num_data = static_cast<int>(data_best_first_.size());
+    while (prefix_ < num_data && num_drawn_ > prefix_draws_) {
+      const double next = expected_draws_ * (prefix_ + 1) / (prefix_ + 1 - kSampleSize);
+      prefix_draws_ += static_cast<int64_t>(std::ceil(next - expected_draws_));
+      expected_draws_ = next;
+      ++prefix_;
+    }
+    std::array<int, kSampleSize> ranks;
+    if (num_drawn_ > prefix_draws_) {
+      ranks = DrawSample<kSampleSize>(prefix_, random);
+    } else {
+      // The newest of the prefix and the rest from before it: the samples that uniform draws
+      // over the prefix have and those over the previous prefix had not.
+      const auto earlier = DrawSample<kSampleSize - 1>(prefix_ - 1, random);
+      std::copy(earlier.begin(), earlier.end(), ranks.begin());
+      ranks.back() = prefix_ - 1;
+    }
+    std::array<int, kSampleSize> sample;
+    for (int i = 0; i < kSampleSize; ++i) sample[i] = data_best_first_[ranks[i]];
+    return sample;
+  }
+
+  // The best-ranked data the draws come from so far.
+  int prefix() const { return prefix_; }
+
+ private:
+  std::vector<int> data_best_first_;
+  int64_t num_drawn_ = 0;
+  int prefix_ = kSampleSize;
+  double expected_draws_ = 0.0;  // T_n
+  int64_t prefix_draws_ = 1;     // T'_n: the last draw that holds the prefix's newest
+};
+
 // The LO-RANSAC loop, with the estimator interface of PoseLib's ransac.h: sample, fit, score,
 // locally optimize the best.
 template <typename Estimator>
@@ -86,9 +149,16 @@ RansacOutcome<typename Estimator::Model> RunLoRansac(Estimator& estimator,
                               options.confidence, options.max_iterations);
   };
   int iteration_bound = options.inliers_to_beat > 0 ? iterations_for(0.0) : options.max_iterations;
+  const bool progressive = !options.data_best_first.empty();
+  THROW_CHECK_MSG(!progressive || static_cast<int>(options.data_best_first.size()) == num_data,
+                  "PROSAC's ranking holds {} indices for {} data", options.data_best_first.size(),
+                  num_data);
+  ProgressiveSampler<Estimator::kSampleSize> progressive_sampler(
+      options.data_best_first, std::max(options.progressive_growth_samples, 1));
   while (outcome.num_iterations < iteration_bound) {
     ++outcome.num_iterations;
-    const auto sample = DrawSample<Estimator::kSampleSize>(num_data, random);
+    const auto sample = progressive ? progressive_sampler.Draw(random)
+                                    : DrawSample<Estimator::kSampleSize>(num_data, random);
     const auto models = estimator.FitMinimal(sample);
     for (int i = 0; i < models.num_solutions; ++i) {
       const Score score = estimator.Evaluate(models.cam_from_world[i], outcome.best.score);
