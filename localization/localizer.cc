@@ -470,7 +470,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   const int64_t num_keypoints = query.keypoints.rows();
   if (num_keypoints < 4) return fail(fmt::format("the query has {} keypoints", num_keypoints));
   EvaluateRound(query, options, 0, evaluation);
-
+  evaluation.first_round_candidates = result.candidates.size();
   if (!votes_only) EvaluateFurtherRounds(query, options, global_descriptor, evaluation);
   const size_t num_candidates = result.candidates.size();
   if (num_candidates == 0) return fail("retrieval found no database image");

@@ -26,6 +26,8 @@ struct Localizer::Evaluation {
   std::vector<std::vector<char>> inlier_masks;  // one per candidate, empty until posed
   // One per candidate: it drew its first look's samples only (CompleteFirstLooks draws the rest).
   std::vector<char> first_look_only;
+  // Candidates of the first retrieval round: [0, first_round_candidates).
+  size_t first_round_candidates = 0;
   // The network's descriptor-only layers, run once for the query's every prediction.
   DescriptorLayerCache network_cache;
 };

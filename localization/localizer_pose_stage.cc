@@ -13,12 +13,43 @@
 
 namespace hscloc {
 
+namespace {
+
+// The matches' order by confidence, most confident first (ties: in match order).
+std::vector<size_t> MostConfidentFirst(const CandidateMatches& matches) {
+  std::vector<size_t> order(matches.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+    return matches.confidences[a] > matches.confidences[b];
+  });
+  return order;
+}
+
+// Whether RANSAC samples these matches by confidence (LocalizerOptions::sample_by_confidence).
+bool SampledByConfidence(const CandidateMatches& matches, const LocalizerOptions& options) {
+  return options.sample_by_confidence && !matches.confidences.empty();
+}
+
+}  // namespace
+
 AbsolutePoseResult Localizer::Pose(const LocalizationQuery& query, const CandidateMatches& matches,
                                    const LocalizerOptions& options, int inliers_to_beat) const {
   AbsolutePoseOptions pose_options = options.pose;
   pose_options.inliers_to_beat = inliers_to_beat;
-  return EstimateAbsolutePose(query.camera, KeypointPixels(query, matches), PointPositions(matches),
-                              pose_options);
+  if (!SampledByConfidence(matches, options)) {
+    return EstimateAbsolutePose(query.camera, KeypointPixels(query, matches),
+                                PointPositions(matches), pose_options);
+  }
+  // PROSAC draws from the front of the list: the most confident matches first.
+  pose_options.progressive_sampling = true;
+  const std::vector<size_t> order = MostConfidentFirst(matches);
+  const CandidateMatches ordered = SelectMatches(matches, order);
+  AbsolutePoseResult pose = EstimateAbsolutePose(query.camera, KeypointPixels(query, ordered),
+                                                 PointPositions(ordered), pose_options);
+  std::vector<char> inlier_mask(matches.size(), 0);
+  for (size_t i = 0; i < order.size(); ++i) inlier_mask[order[i]] = pose.inlier_mask[i];
+  pose.inlier_mask = std::move(inlier_mask);
+  return pose;
 }
 
 std::vector<AbsolutePoseResult> Localizer::PoseTogether(const LocalizationQuery& query,
@@ -179,6 +210,8 @@ bool Localizer::CompleteFirstLooks(const LocalizationQuery& query, const Localiz
   rest.pose.seed = options.pose.seed + 1;
   std::vector<size_t> order;
   for (const size_t k : PoseOrder(candidates, 0, candidates.size(), false)) {
+    const bool later_round = k >= evaluation.first_round_candidates;
+    if (later_round && SampledByConfidence(evaluation.matches[k], options)) continue;
     if (evaluation.first_look_only[k]) order.push_back(k);
   }
   bool improved = false;

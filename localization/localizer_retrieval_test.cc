@@ -126,6 +126,35 @@ TEST_F(SmallCityLocalizerTest, WrongGlobalCandidatesDrawOnlyTheirFirstLooks) {
   }
 }
 
+// Sampled by confidence, the candidates of the votes' round draw their first looks only; sampled
+// uniformly they draw the rest of the budget where they could still win. The misled queries are
+// placed either way: the votes' right images are found within their first looks.
+TEST_F(SmallCityLocalizerTest, LaterRoundsSampledByConfidenceDrawOnlyTheirFirstLooks) {
+  const QuerySet& set = Set("day");
+  const LocalizerOptions by_confidence;
+  ASSERT_TRUE(by_confidence.sample_by_confidence);
+  LocalizerOptions uniform;
+  uniform.sample_by_confidence = false;
+  int uniform_completed = 0;
+  const size_t count = std::min<size_t>(set.queries.size(), 4);
+  for (size_t q = 0; q < count; ++q) {
+    SCOPED_TRACE(set.queries[q].name);
+    const LocalizationQuery query = Misled(localizer().map(), set, q);
+    const PoseResult ranked = localizer().Localize(query, by_confidence);
+    const PoseResult unranked = localizer().Localize(query, uniform);
+    ASSERT_EQ(ranked.candidates.size(), 20u);
+    ASSERT_EQ(unranked.candidates.size(), 20u);
+    for (size_t k = 10; k < 20; ++k) {
+      EXPECT_LE(ranked.candidates[k].ransac_samples, by_confidence.first_look_samples) << k;
+      uniform_completed += unranked.candidates[k].ransac_samples > uniform.first_look_samples;
+    }
+    EXPECT_TRUE(WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], ranked));
+    EXPECT_TRUE(WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], unranked));
+  }
+  EXPECT_GT(uniform_completed, 0) << "no later candidate needed more than its first look: the "
+                                     "test cannot tell the two apart";
+}
+
 // Candidates are posed two at a time on the compute threads, each against the best pose before
 // its pair: every candidate draws the same samples and finds the same pose on one thread as on
 // several. Misled queries pose twenty candidates, most of them failing.

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <iostream>
+#include <limits>
 #include <map>
 #include <set>
 #include <thread>
@@ -247,6 +248,38 @@ TEST_F(SmallCityLocalizerTest, ResultDescribesTheWinningCandidate) {
       [](const LocalizationCandidate& c) { return c.source == CandidateSource::kPointVotes; });
   EXPECT_EQ(result.timings.rounds, voted ? 2 : 1);
   EXPECT_EQ(result.timings.votes_ms > 0, voted);
+}
+
+// RANSAC samples the network's matches by confidence, in another order than theirs: each inlier
+// flag of the winner's own pose still belongs to its match. (Every prediction is a match here, so
+// that no choice among rival keypoints poses the winner anew.)
+TEST_F(SmallCityLocalizerTest, InlierFlagsBelongToTheirMatches) {
+  LocalizerOptions winner_only;
+  winner_only.final_pose = FinalPose::kWinner;
+  winner_only.one_keypoint_per_point = false;
+  ASSERT_TRUE(winner_only.sample_by_confidence);
+  const double threshold = winner_only.pose.max_reprojection_error_px;
+  const QuerySet& set = Set("day");
+  const size_t count = std::min<size_t>(set.queries.size(), 3);
+  for (size_t q = 0; q < count; ++q) {
+    const LocalizationQuery& query = set.queries[q];
+    SCOPED_TRACE(query.name);
+    const PoseResult result = localizer().Localize(query, winner_only);
+    ASSERT_TRUE(result.success) << result.failure_reason;
+    ASSERT_EQ(result.match_inliers.size(), result.match_points.size());
+    int mismatches = 0;
+    for (size_t i = 0; i < result.match_points.size(); ++i) {
+      const Eigen::Vector3d point_in_cam =
+          result.cam_from_world * localizer().map().scene().points[result.match_points[i]];
+      const Eigen::Vector2d keypoint =
+          query.keypoints.row(result.match_keypoints[i]).transpose().cast<double>();
+      const double error = point_in_cam.z() > 0
+                               ? (query.camera.ImgFromPointInCam(point_in_cam) - keypoint).norm()
+                               : std::numeric_limits<double>::infinity();
+      mismatches += (result.match_inliers[i] == 1) != (error <= threshold);
+    }
+    EXPECT_EQ(mismatches, 0);
+  }
 }
 
 // The pooled final pose: at least the winner's inliers, from the matches of candidates the

@@ -10,6 +10,20 @@
 
 namespace hscloc {
 
+CandidateMatches SelectMatches(const CandidateMatches& matches, const std::vector<size_t>& chosen) {
+  const bool with_confidences = !matches.confidences.empty();
+  CandidateMatches selected;
+  selected.keypoints.reserve(chosen.size());
+  selected.point_indices.reserve(chosen.size());
+  if (with_confidences) selected.confidences.reserve(chosen.size());
+  for (const size_t i : chosen) {
+    selected.keypoints.push_back(matches.keypoints[i]);
+    selected.point_indices.push_back(matches.point_indices[i]);
+    if (with_confidences) selected.confidences.push_back(matches.confidences[i]);
+  }
+  return selected;
+}
+
 void NearestNeighborOptions::Check() const {
   THROW_CHECK_MSG(ratio > 0 && ratio <= 1, "NearestNeighborOptions.ratio = {} (0 .. 1]", ratio);
 }

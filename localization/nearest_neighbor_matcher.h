@@ -23,6 +23,10 @@ struct CandidateMatches {
   size_t size() const { return keypoints.size(); }
 };
 
+// The matches at `chosen` (indices into `matches`), in that order, with their confidences where
+// they have them.
+CandidateMatches SelectMatches(const CandidateMatches& matches, const std::vector<size_t>& chosen);
+
 struct NearestNeighborOptions {
   // Lowe's ratio on descriptor distances, the best row's against the best row of another point (an
   // image's observations are one per point; other rows may hold several per point); 1 accepts

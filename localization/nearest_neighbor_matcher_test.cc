@@ -177,5 +177,20 @@ TEST(NearestNeighborMatcher, EmptySceneAndBadImageIndex) {
   EXPECT_THROW(NearestNeighborOptions{.ratio = 1.5}.Check(), std::invalid_argument);
 }
 
+TEST(SelectMatchesTest, KeepsTheChosenMatchesInTheGivenOrder) {
+  CandidateMatches matches;
+  matches.keypoints = {4, 7, 9};
+  matches.point_indices = {40, 70, 90};
+  matches.confidences = {0.4f, 0.7f, 0.9f};
+  const CandidateMatches selected = SelectMatches(matches, {2, 0});
+  EXPECT_EQ(selected.keypoints, (std::vector<int>{9, 4}));
+  EXPECT_EQ(selected.point_indices, (std::vector<uint32_t>{90, 40}));
+  EXPECT_EQ(selected.confidences, (std::vector<float>{0.9f, 0.4f}));
+  matches.confidences.clear();
+  const CandidateMatches without = SelectMatches(matches, {1});
+  EXPECT_EQ(without.keypoints, (std::vector<int>{7}));
+  EXPECT_TRUE(without.confidences.empty()) << "a matcher without confidences gets none";
+}
+
 }  // namespace
 }  // namespace hscloc

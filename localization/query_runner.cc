@@ -76,7 +76,7 @@ class SubmissionWriter {
     timings_.open(timings_path, mode);
     if (!timings_) ThrowInvalidArgument("cannot write {}", timings_path.string());
     if (!has_header) {
-      timings_ << "name,localized,keypoints,rounds,inliers";
+      timings_ << "name,localized,keypoints,rounds,inliers,ransac_samples";
       for (const StageField& field : kStageFields) timings_ << ',' << field.name << "_ms";
       timings_ << '\n' << std::flush;
     }
@@ -87,8 +87,13 @@ class SubmissionWriter {
   void Write(const std::string& basename, const PoseResult& result, int64_t num_keypoints) {
     submission_ << FormatPoseLine(basename, result.cam_from_world) << std::flush;
     if (timings_.is_open()) {
-      timings_ << fmt::format("{},{},{},{},{}", basename, result.success ? 1 : 0, num_keypoints,
-                              result.timings.rounds, result.num_inliers);
+      // The samples drawn do not depend on the machine's load, as the milliseconds do.
+      int64_t ransac_samples = 0;
+      for (const LocalizationCandidate& candidate : result.candidates) {
+        ransac_samples += candidate.ransac_samples;
+      }
+      timings_ << fmt::format("{},{},{},{},{},{}", basename, result.success ? 1 : 0, num_keypoints,
+                              result.timings.rounds, result.num_inliers, ransac_samples);
       for (const StageField& field : kStageFields) {
         timings_ << fmt::format(",{:.3f}", result.timings.*field.milliseconds);
       }

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdint>
 #include <fstream>
 #include <iterator>
 #include <sstream>
@@ -135,14 +136,15 @@ TEST_F(QueryRunnerTest, TimingsFileHasALineOfStagesPerQueryAndResumesAfterTheFir
   std::string line;
   ASSERT_TRUE(std::getline(file, line));
   EXPECT_EQ(line,
-            "name,localized,keypoints,rounds,inliers,retrieval_ms,votes_ms,match_ms,"
+            "name,localized,keypoints,rounds,inliers,ransac_samples,retrieval_ms,votes_ms,"
+            "match_ms,"
             "visibility_ms,pose_ms,refine_ms,total_ms");
   size_t rows = 0;
   while (std::getline(file, line)) {
     std::vector<std::string> cells;
     std::stringstream stream(line);
     for (std::string cell; std::getline(stream, cell, ',');) cells.push_back(cell);
-    ASSERT_EQ(cells.size(), 12u) << line;
+    ASSERT_EQ(cells.size(), 13u) << line;
     EXPECT_EQ(cells[0], ImageBasename(queries[rows].name));
     const LocalizationQuery query = LoadQuery(queries[rows], *features);
     EXPECT_EQ(std::stol(cells[2]), query.keypoints.rows());
@@ -150,12 +152,20 @@ TEST_F(QueryRunnerTest, TimingsFileHasALineOfStagesPerQueryAndResumesAfterTheFir
     // first was weak.
     EXPECT_GE(std::stoi(cells[3]), 1);
     EXPECT_LE(std::stoi(cells[3]), 2);
-    const double total = std::stod(cells[11]);
+    // A query with a pose drew at least one sample; none draws more than its candidates' budgets.
+    const int64_t samples = std::stoll(cells[5]);
+    if (cells[1] == "1") {
+      EXPECT_GE(samples, 1) << line;
+    }
+    const LocalizerOptions& defaults = localizer.options();
+    EXPECT_LE(samples, int64_t{2 * defaults.top_k + defaults.deeper_global_candidates} *
+                           defaults.pose.max_iterations);
+    const double total = std::stod(cells[12]);
     EXPECT_GT(total, 0);
     double stages = 0;
-    for (const int stage : {5, 7, 8, 9}) stages += std::stod(cells[stage]);
+    for (const int stage : {6, 8, 9, 10}) stages += std::stod(cells[stage]);
     EXPECT_LE(stages, total + 0.01);
-    EXPECT_LE(std::stod(cells[10]), std::stod(cells[9]) + 0.001) << "refinement is part of pose";
+    EXPECT_LE(std::stod(cells[11]), std::stod(cells[10]) + 0.001) << "refinement is part of pose";
     ++rows;
   }
   EXPECT_EQ(rows, queries.size()) << "no header again, no query twice";

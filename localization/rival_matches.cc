@@ -28,13 +28,7 @@ CandidateMatches BestKeypointPerPoint(const CandidateMatches& predictions, Score
                ? predictions.keypoints[a] < predictions.keypoints[b]
                : a < b;
   });
-  CandidateMatches chosen;
-  for (const size_t i : kept) {
-    chosen.keypoints.push_back(predictions.keypoints[i]);
-    chosen.point_indices.push_back(predictions.point_indices[i]);
-    chosen.confidences.push_back(predictions.confidences[i]);
-  }
-  return chosen;
+  return SelectMatches(predictions, kept);
 }
 
 void CheckConfidences(const CandidateMatches& predictions) {

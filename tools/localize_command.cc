@@ -32,6 +32,7 @@ struct LocalizeArguments {
   bool no_visibility_filter = false;
   bool no_image_id = false;
   bool every_keypoint = false;
+  bool uniform_sampling = false;
   LocalizerOptions options;
   QueryListRunOptions run;
 };
@@ -45,6 +46,7 @@ int RunLocalize(LocalizeArguments& arguments) {
   options.visibility_filter = !arguments.no_visibility_filter;
   options.use_image_id = !arguments.no_image_id;
   options.one_keypoint_per_point = !arguments.every_keypoint;
+  options.sample_by_confidence = !arguments.uniform_sampling;
   options.Check();
 
   std::vector<QueryWithIntrinsics> queries;
@@ -111,8 +113,9 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->check(CLI::ExistingFile);
   command->add_option("--out", arguments->run.out, "Submission file: NAME QW QX QY QZ TX TY TZ")
       ->required();
-  command->add_option("--timings", arguments->run.timings_out,
-                      "CSV of every query's stage timings in milliseconds, rounds and inliers");
+  command->add_option(
+      "--timings", arguments->run.timings_out,
+      "CSV of every query's stage timings in milliseconds, rounds, inliers and RANSAC samples");
   command
       ->add_option("--matcher", arguments->matcher,
                    "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
@@ -178,6 +181,14 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->add_option("--threshold", options.pose.max_reprojection_error_px,
                    "RANSAC inlier threshold in pixels")
       ->capture_default_str();
+  command
+      ->add_option("--ransac-samples", options.pose.max_iterations,
+                   "Most RANSAC samples (hypotheses) per retrieved image")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  command->add_flag("--uniform-sampling", arguments->uniform_sampling,
+                    "RANSAC samples the network's matches uniformly, not the most confident first "
+                    "(PROSAC), and every round's candidates draw the whole budget");
   command
       ->add_option("--ransac-seed", options.pose.seed,
                    "Seed of RANSAC's sampling (equal queries and seeds give equal poses)")
