@@ -1,6 +1,6 @@
 // Retrieval at Aachen's shape: VLAD encoding of a query's local descriptors (D = 256, 64 words,
-// whitened to 256) and the search of the top 10 among 4,000 database images (flat and IVF-PQ),
-// and the two together.
+// whitened to the maps' 2,048 dimensions, which takes 2,049 images or more) and the search of the
+// top 10 among 4,000 database images (flat and IVF-PQ), and the two together.
 #include <benchmark/benchmark.h>
 
 #include <vector>
@@ -30,9 +30,11 @@ struct RetrievalSetup {
   RetrievalSetup() {
     Random random(1);
     std::vector<DescriptorMatrix> training;
-    for (int image = 0; image < 400; ++image) training.push_back(RandomUnitRows(250, random));
     VladOptions options;
     options.kmeans_iterations = 10;
+    for (int image = 0; image <= options.whitened_dim; ++image) {
+      training.push_back(RandomUnitRows(64, random));
+    }
     encoder = VladEncoder::Train(training, options);
     Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> database(
         kDatabaseImages, encoder.output_dim());

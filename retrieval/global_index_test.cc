@@ -127,6 +127,21 @@ TEST(GlobalIndexTest, KLargerThanTheIndexReturnsEveryImageBestFirst) {
   EXPECT_TRUE(index.Search(query, 0).empty());
 }
 
+// Equal scores rank by image index, so that a search gives the same order on every machine.
+TEST(GlobalIndexTest, EqualScoresRankTheLowerImageFirst) {
+  RowMajorMatrixXf database = RandomUnitRows(12, 32, 9);
+  database.row(9) = database.row(2);
+  database.row(5) = database.row(2);
+  const GlobalIndex index = GlobalIndex::Build(database);
+  const Eigen::VectorXf query = database.row(2).transpose();
+  const std::vector<RetrievalHit> hits = index.Search(query, 3);
+  ASSERT_EQ(hits.size(), 3u);
+  EXPECT_EQ(hits[0].image_index, 2u);
+  EXPECT_EQ(hits[1].image_index, 5u);
+  EXPECT_EQ(hits[2].image_index, 9u);
+  EXPECT_EQ(hits[0].score, hits[2].score);
+}
+
 TEST(GlobalIndexTest, ADatabaseImageFindsItselfFirst) {
   const RowMajorMatrixXf database = RandomUnitRows(200, 32, 5);
   const GlobalIndex index = GlobalIndex::Build(database);
