@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <optional>
 #include <utility>
 #include <vector>
 
@@ -149,16 +150,18 @@ RansacOutcome<typename Estimator::Model> RunLoRansac(Estimator& estimator,
                               options.confidence, options.max_iterations);
   };
   int iteration_bound = options.inliers_to_beat > 0 ? iterations_for(0.0) : options.max_iterations;
-  const bool progressive = !options.data_best_first.empty();
-  THROW_CHECK_MSG(!progressive || static_cast<int>(options.data_best_first.size()) == num_data,
-                  "PROSAC's ranking holds {} indices for {} data", options.data_best_first.size(),
-                  num_data);
-  ProgressiveSampler<Estimator::kSampleSize> progressive_sampler(
-      options.data_best_first, std::max(options.progressive_growth_samples, 1));
+  std::optional<ProgressiveSampler<Estimator::kSampleSize>> progressive_sampler;
+  if (!options.data_best_first.empty()) {
+    THROW_CHECK_MSG(static_cast<int>(options.data_best_first.size()) == num_data,
+                    "PROSAC's ranking holds {} indices for {} data", options.data_best_first.size(),
+                    num_data);
+    progressive_sampler.emplace(options.data_best_first,
+                                std::max(options.progressive_growth_samples, 1));
+  }
   while (outcome.num_iterations < iteration_bound) {
     ++outcome.num_iterations;
-    const auto sample = progressive ? progressive_sampler.Draw(random)
-                                    : DrawSample<Estimator::kSampleSize>(num_data, random);
+    const auto sample = progressive_sampler ? progressive_sampler->Draw(random)
+                                            : DrawSample<Estimator::kSampleSize>(num_data, random);
     const auto models = estimator.FitMinimal(sample);
     for (int i = 0; i < models.num_solutions; ++i) {
       const Score score = estimator.Evaluate(models.cam_from_world[i], outcome.best.score);
