@@ -37,20 +37,24 @@ SolverOutcome RunLoRansacSolver(std::vector<NormalizedCorrespondence> correspond
                                 const AbsolutePoseOptions& options) {
   Random random(options.seed);
   // Keypoints often arrive in order (by image row, by retrieved image); the sequential test needs
-  // every prefix to be a random subset. PROSAC samples by the order they came in.
-  std::vector<int> best_first(correspondences.size());
-  std::iota(best_first.begin(), best_first.end(), 0);
+  // every prefix to be a random subset. PROSAC samples by the order they came in, so it follows
+  // each correspondence's rank to its shuffled position.
+  const bool progressive = options.progressive_sampling;
+  std::vector<int> rank_at_position;
+  if (progressive) {
+    rank_at_position.resize(correspondences.size());
+    std::iota(rank_at_position.begin(), rank_at_position.end(), 0);
+  }
   for (int i = static_cast<int>(correspondences.size()) - 1; i > 0; --i) {
     const auto j = static_cast<int>(random.UniformInt(i + 1));
     std::swap(correspondences[i], correspondences[j]);
-    std::swap(best_first[i], best_first[j]);
+    if (progressive) std::swap(rank_at_position[i], rank_at_position[j]);
   }
   RansacOptions ransac_options;
-  if (options.progressive_sampling) {
-    // best_first[position] is the rank of the correspondence now at that position.
-    ransac_options.data_best_first.resize(best_first.size());
-    for (size_t position = 0; position < best_first.size(); ++position) {
-      ransac_options.data_best_first[best_first[position]] = static_cast<int>(position);
+  if (progressive) {
+    ransac_options.data_best_first.resize(rank_at_position.size());
+    for (size_t position = 0; position < rank_at_position.size(); ++position) {
+      ransac_options.data_best_first[rank_at_position[position]] = static_cast<int>(position);
     }
     ransac_options.progressive_growth_samples = options.max_iterations;
   }

@@ -10,7 +10,6 @@
 #include <cstdint>
 #include <limits>
 #include <optional>
-#include <utility>
 #include <vector>
 
 #include "util/check.h"
@@ -86,8 +85,9 @@ std::array<int, kSampleSize> DrawSample(int num_data, Random& random) {
 template <int kSampleSize>
 class ProgressiveSampler {
  public:
-  ProgressiveSampler(std::vector<int> data_best_first, int growth_samples)
-      : data_best_first_(std::move(data_best_first)) {
+  // Reads `data_best_first` on every draw: it must outlive the sampler.
+  ProgressiveSampler(const std::vector<int>& data_best_first, int growth_samples)
+      : data_best_first_(data_best_first) {
     const auto num_data = static_cast<double>(data_best_first_.size());
     // T_n of the paper for n = kSampleSize: the uniform draws among growth_samples that fall
     // wholly within the best kSampleSize.
@@ -125,7 +125,7 @@ class ProgressiveSampler {
   int prefix() const { return prefix_; }
 
  private:
-  std::vector<int> data_best_first_;
+  const std::vector<int>& data_best_first_;
   int64_t num_drawn_ = 0;
   int prefix_ = kSampleSize;
   double expected_draws_ = 0.0;  // T_n

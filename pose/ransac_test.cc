@@ -28,7 +28,8 @@ int RankOf(int index, int num_data) { return num_data - 1 - index; }
 TEST(ProgressiveSampler, StartsWithTheBestAndAddsEachNewcomerToItsDraws) {
   const int num_data = 200;
   const int growth_samples = 5000;
-  ProgressiveSampler<kSampleSize> sampler(ReversedRanking(num_data), growth_samples);
+  const std::vector<int> ranking = ReversedRanking(num_data);
+  ProgressiveSampler<kSampleSize> sampler(ranking, growth_samples);
   Random random(3);
   const auto first = sampler.Draw(random);
   std::set<int> first_ranks;
@@ -72,7 +73,8 @@ TEST(ProgressiveSampler, StartsWithTheBestAndAddsEachNewcomerToItsDraws) {
 TEST(ProgressiveSampler, DrawsFromTheBestRankedFirst) {
   const int num_data = 400;
   const int growth_samples = 5000;
-  ProgressiveSampler<kSampleSize> sampler(ReversedRanking(num_data), growth_samples);
+  const std::vector<int> ranking = ReversedRanking(num_data);
+  ProgressiveSampler<kSampleSize> sampler(ranking, growth_samples);
   Random random(4);
   const int best = num_data / 4;
   int within_best = 0;
