@@ -17,6 +17,7 @@
 #include "map/map_bundle.h"
 #include "util/check.h"
 #include "util/memory.h"
+#include "util/parallel.h"
 #include "util/timer.h"
 
 namespace hscloc {
@@ -322,21 +323,24 @@ void Localizer::EvaluateCandidates(const LocalizationQuery& query, const Localiz
   }
   {
     ScopedTimer timer(&timings.visibility_ms);
-    for (size_t k = begin; k < end; ++k) {
-      CandidateMatches& candidate_matches = matches[k - begin];
-      if (options.visibility_filter) {
-        candidate_matches = FilterVisible(candidates[k].image_index, std::move(candidate_matches));
+    ParallelFor(end - begin, ComputeThreads(), [&](size_t first, size_t last) {
+      for (size_t k = begin + first; k < begin + last; ++k) {
+        CandidateMatches& candidate_matches = matches[k - begin];
+        if (options.visibility_filter) {
+          candidate_matches =
+              FilterVisible(candidates[k].image_index, std::move(candidate_matches));
+        }
+        // A point is seen once in an image: its most confident keypoint stands for it until a
+        // pose is known (RefineRoundWinner).
+        if (options.one_keypoint_per_point && !candidate_matches.confidences.empty()) {
+          evaluation.matches[k] = MostConfidentKeypointPerPoint(candidate_matches);
+          evaluation.predictions[k] = std::move(candidate_matches);
+        } else {
+          evaluation.matches[k] = std::move(candidate_matches);
+        }
+        candidates[k].num_matches = static_cast<int>(evaluation.matches[k].size());
       }
-      // A point is seen once in an image: its most confident keypoint stands for it until a pose
-      // is known (RefineRoundWinner).
-      if (options.one_keypoint_per_point && !candidate_matches.confidences.empty()) {
-        evaluation.matches[k] = MostConfidentKeypointPerPoint(candidate_matches);
-        evaluation.predictions[k] = std::move(candidate_matches);
-      } else {
-        evaluation.matches[k] = std::move(candidate_matches);
-      }
-      candidates[k].num_matches = static_cast<int>(evaluation.matches[k].size());
-    }
+    });
   }
   ScopedTimer timer(&timings.pose_ms);
   LocalizerOptions first_look = options;

@@ -2,7 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
-#include <unordered_map>
+#include <cstdint>
 #include <utility>
 
 #include "util/check.h"
@@ -13,16 +13,26 @@ namespace {
 // The match `score` ranks highest for each point (ties: the first), in keypoint order.
 template <typename Score>
 CandidateMatches BestKeypointPerPoint(const CandidateMatches& predictions, Score score) {
-  std::unordered_map<uint32_t, size_t> best_of_point;
-  std::vector<double> scores(predictions.size());
+  // Matches grouped by point through one sort of (point, match) packed in an integer: a hash map
+  // of the points took most of the visibility stage.
+  std::vector<uint64_t> by_point(predictions.size());
   for (size_t i = 0; i < predictions.size(); ++i) {
-    scores[i] = score(i);
-    auto [it, inserted] = best_of_point.emplace(predictions.point_indices[i], i);
-    if (!inserted && scores[it->second] < scores[i]) it->second = i;
+    by_point[i] = uint64_t{predictions.point_indices[i]} << 32 | i;
   }
+  std::sort(by_point.begin(), by_point.end());
   std::vector<size_t> kept;
-  kept.reserve(best_of_point.size());
-  for (const auto& [point, match] : best_of_point) kept.push_back(match);
+  double kept_score = 0;
+  for (size_t j = 0; j < by_point.size(); ++j) {
+    const size_t match = by_point[j] & 0xffffffffu;
+    const double match_score = score(match);
+    if (j == 0 || by_point[j] >> 32 != by_point[j - 1] >> 32) {
+      kept.push_back(match);
+      kept_score = match_score;
+    } else if (match_score > kept_score) {
+      kept.back() = match;
+      kept_score = match_score;
+    }
+  }
   std::sort(kept.begin(), kept.end(), [&](size_t a, size_t b) {
     return predictions.keypoints[a] != predictions.keypoints[b]
                ? predictions.keypoints[a] < predictions.keypoints[b]

@@ -3,6 +3,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <stdexcept>
 
 #include "util/random.h"
@@ -29,6 +30,41 @@ TEST(RivalMatches, MostConfidentKeypointStandsForItsPoint) {
   EXPECT_EQ(MostConfidentKeypointPerPoint({}).size(), 0u);
   EXPECT_THROW(MostConfidentKeypointPerPoint(Predictions({0, 1}, {7, 7}, {})),
                std::invalid_argument);
+}
+
+// Against a brute-force reference on many rivals: for each point, the first of its most
+// confident keypoints, the survivors in keypoint order (keypoints repeat: a keypoint predicts a
+// point per level of rivals).
+TEST(RivalMatches, MostConfidentKeypointMatchesABruteForceReference) {
+  Random random(3);
+  for (int trial = 0; trial < 20; ++trial) {
+    CandidateMatches predictions;
+    for (int i = 0; i < 300; ++i) {
+      predictions.keypoints.push_back(static_cast<int>(random.UniformInt(100)));
+      predictions.point_indices.push_back(static_cast<uint32_t>(random.UniformInt(40)));
+      // Few distinct confidences, so that ties are common.
+      predictions.confidences.push_back(static_cast<float>(random.UniformInt(5)) / 4);
+    }
+    std::vector<size_t> expected;
+    for (size_t i = 0; i < predictions.size(); ++i) {
+      bool best = true;
+      for (size_t j = 0; j < predictions.size() && best; ++j) {
+        if (predictions.point_indices[j] != predictions.point_indices[i]) continue;
+        best = predictions.confidences[j] < predictions.confidences[i] ||
+               (predictions.confidences[j] == predictions.confidences[i] && j >= i);
+      }
+      if (best) expected.push_back(i);
+    }
+    std::stable_sort(expected.begin(), expected.end(), [&](size_t a, size_t b) {
+      return predictions.keypoints[a] < predictions.keypoints[b];
+    });
+    const CandidateMatches chosen = MostConfidentKeypointPerPoint(predictions);
+    ASSERT_EQ(chosen.size(), expected.size());
+    for (size_t k = 0; k < expected.size(); ++k) {
+      EXPECT_EQ(chosen.keypoints[k], predictions.keypoints[expected[k]]);
+      EXPECT_EQ(chosen.point_indices[k], predictions.point_indices[expected[k]]);
+    }
+  }
 }
 
 // A pinhole camera at the origin looking down +z: point i at depth 10 m reprojects on the pixel

@@ -151,6 +151,14 @@ void ModulateElu(const float* source, const int64_t* source_rows, const float* g
     const float* gamma_row = gamma + int64_t{modulation_rows[row]} * columns;
     const float* beta_row = beta + int64_t{modulation_rows[row]} * columns;
     float* out_row = out + row * columns;
+    if (source_rows != nullptr && row + 1 < rows) {
+      // Gathered rows are scattered over the source: the next one is fetched while this one is
+      // modulated.
+      const char* next_row = reinterpret_cast<const char*>(source + source_rows[row + 1] * columns);
+      for (int64_t byte = 0; byte < columns * int64_t{sizeof(float)}; byte += 64) {
+        __builtin_prefetch(next_row + byte);
+      }
+    }
     int64_t column = 0;
     for (; column + kLanes <= columns; column += kLanes) {
       ei::pstoreu(out_row + column, Elu(ei::pmadd(ei::ploadu<Packet>(gamma_row + column),
@@ -336,30 +344,42 @@ float MaxOf(const float* values, int64_t count) {
 
 }  // namespace
 
-void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns) {
+void SoftmaxNormalizers(const float* logits, int64_t rows, int64_t columns,
+                        SoftmaxNormalizer* normalizers) {
   for (int64_t row_index = 0; row_index < rows; ++row_index) {
-    float* row = values + row_index * columns;
+    const float* row = logits + row_index * columns;
     const int64_t live = LiveColumns(row, columns);
-    std::fill(row + live, row + columns, 0.0f);
     if (live == 0) {
       // Every value -inf: exp(-inf - -inf) is NaN on every column, as over the whole row.
-      std::fill(row, row + columns, std::numeric_limits<float>::quiet_NaN());
+      normalizers[row_index] = {-std::numeric_limits<float>::infinity(),
+                                std::numeric_limits<float>::quiet_NaN()};
       continue;
     }
-    const float max = MaxOf(row, live);
-    const Packet shift = ei::pset1<Packet>(max);
-    ForEachPacket(row, live, row, [&](const Packet& x) { return ei::pexp(ei::psub(x, shift)); });
-    // A fixed summation order: packets from the row's start, then the lanes within a packet. The
-    // zeros past `live` would add nothing to any lane.
+    const float largest = MaxOf(row, live);
+    const Packet shift = ei::pset1<Packet>(largest);
+    // A fixed summation order: packets from the row's start, then the lanes within a packet; the
+    // last packet's lanes past `live` add zeros.
     Packet sums = ei::pset1<Packet>(0);
     int64_t i = 0;
-    for (; i + kLanes <= live; i += kLanes) sums = ei::padd(sums, ei::ploadu<Packet>(row + i));
+    for (; i + kLanes <= live; i += kLanes) {
+      sums = ei::padd(sums, ei::pexp(ei::psub(ei::ploadu<Packet>(row + i), shift)));
+    }
     alignas(64) float tail[kLanes] = {};
     std::copy(row + i, row + live, tail);
+    ei::pstore(tail, ei::pexp(ei::psub(ei::pload<Packet>(tail), shift)));
+    std::fill(tail + (live - i), tail + kLanes, 0.0f);
     sums = ei::padd(sums, ei::pload<Packet>(tail));
-    const Packet inverse = ei::pset1<Packet>(1.f / ei::predux(sums));
-    ForEachPacket(row, live, row, [&](const Packet& x) { return ei::pmul(x, inverse); });
+    normalizers[row_index] = {largest, 1.f / ei::predux(sums)};
   }
+}
+
+float SoftmaxOf(float logit, const SoftmaxNormalizer& normalizer) {
+  // The vector exponential, whose bits the normalizer's sum was taken with.
+  alignas(64) float lanes[kLanes];
+  ei::pstore(lanes, ei::pmul(ei::pexp(ei::pset1<Packet>(logit - normalizer.largest)),
+                             ei::pset1<Packet>(normalizer.inverse_sum)));
+  return logit == -std::numeric_limits<float>::infinity() && normalizer.largest > logit ? 0.0f
+                                                                                        : lanes[0];
 }
 
 void FusedMultiplyAddPeakLoop(int64_t iterations, float* sink) {

@@ -71,10 +71,19 @@ void BestPointLogSumExpLogits(const float* projected, int64_t num_inputs, int64_
                               const uint8_t* segment_groups, int64_t num_segments,
                               int64_t out_columns, float* out);
 
-// Each of `rows` rows of `columns` values replaced by its softmax. A row's trailing -inf values
-// (children a parent does not have) become 0 without an exp each; the rest is summed in the same
-// order as over the whole row, so the result is the same to the bit.
-void SoftmaxRowsInPlace(float* values, int64_t rows, int64_t columns);
+// The softmax of rows of logits, never written out: the label choice needs one child's
+// probability per row, and the logits' order is the probabilities' order. Per row, its largest
+// logit and the inverse of its sum of exp(logit - largest); a row's trailing -inf values (children
+// a parent does not have) take no exp, the rest is summed in one fixed order wherever the row
+// sits. A row of -inf alone gets a NaN sum, as its softmax is NaN.
+struct SoftmaxNormalizer {
+  float largest = 0;
+  float inverse_sum = 0;
+};
+void SoftmaxNormalizers(const float* logits, int64_t rows, int64_t columns,
+                        SoftmaxNormalizer* normalizers);
+// The softmax probability of one logit of a row with that normalizer; a -inf logit gets 0.
+float SoftmaxOf(float logit, const SoftmaxNormalizer& normalizer);
 
 // kPeakLoopChains independent chains of `iterations` fused multiply-add packets each, on registers
 // only (`sink` keeps them from being optimized away): 2 x PacketLanes() x kPeakLoopChains x

@@ -25,6 +25,20 @@ std::vector<float> Normal(int64_t count, Random& random) {
 
 float EluReference(float x) { return x > 0 ? x : std::expm1(x); }
 
+// The softmax of `rows` rows of logits, each value through its row's normalizer.
+std::vector<float> SoftmaxRows(const float* logits, int64_t rows, int64_t columns) {
+  std::vector<dense_kernels::SoftmaxNormalizer> normalizers(rows);
+  dense_kernels::SoftmaxNormalizers(logits, rows, columns, normalizers.data());
+  std::vector<float> probabilities(rows * columns);
+  for (int64_t r = 0; r < rows; ++r) {
+    for (int64_t c = 0; c < columns; ++c) {
+      probabilities[r * columns + c] =
+          dense_kernels::SoftmaxOf(logits[r * columns + c], normalizers[r]);
+    }
+  }
+  return probabilities;
+}
+
 TEST(DenseKernelsTest, LinearMatchesAReferenceProductForAnyShape) {
   Random random(1);
   for (int64_t m : {1, 3, 17, 128}) {
@@ -131,14 +145,47 @@ TEST(DenseKernelsTest, ModulateEluGathersRowsAndModulates) {
   }
 }
 
+// ELU's negative side is exp(x) - 1 over the whole float range: within a few ulps of expm1's
+// -1 .. 0 wherever exp(x) is a normal float, -1 below, never a NaN.
+TEST(DenseKernelsTest, EluFollowsExpm1OverTheWholeNegativeRange) {
+  std::vector<float> values;
+  for (float x = -1e-7f; x > -120.0f; x *= 1.01f) values.push_back(x);
+  for (const float x :
+       {0.0f, -0.0f, -87.3f, -87.4f, -88.8f, -1e30f, -std::numeric_limits<float>::infinity()}) {
+    values.push_back(x);
+  }
+  std::vector<float> elu = values;
+  dense_kernels::EluInPlace(elu.data(), static_cast<int64_t>(elu.size()));
+  for (size_t i = 0; i < values.size(); ++i) {
+    const double expected = std::expm1(double{values[i]});
+    // exp(x) to a few parts in 10^7 of itself, then 1 subtracted.
+    const double tolerance = 4e-7 * std::exp(double{values[i]}) + 1e-7 * std::abs(expected);
+    EXPECT_NEAR(elu[i], expected, std::max(tolerance, 1e-37)) << values[i];
+  }
+}
+
+// Softmax of logits far below the largest: exp(x - max) can underflow, and no value leaves [0, 1]
+// or turns the row into NaN.
+TEST(DenseKernelsTest, SoftmaxRowsOfDistantLogitsStayProbabilities) {
+  const float minus_infinity = -std::numeric_limits<float>::infinity();
+  std::vector<float> row = {0.0f, -10.0f, -90.0f, minus_infinity, -200.0f, 3.0f, -1e30f};
+  const std::vector<float> logits = row;
+  row = SoftmaxRows(logits.data(), 1, static_cast<int64_t>(logits.size()));
+  double reference_sum = 0;
+  for (const float value : logits) reference_sum += std::exp(double{value} - 3.0);
+  for (size_t i = 0; i < row.size(); ++i) {
+    EXPECT_GE(row[i], 0.0f) << i;
+    EXPECT_NEAR(row[i], std::exp(double{logits[i]} - 3.0) / reference_sum, 1e-6) << i;
+  }
+}
+
 TEST(DenseKernelsTest, SoftmaxRowsArePositiveAndSumToOne) {
   Random random(3);
   const int64_t rows = 5;
   const int64_t columns = 100;
-  std::vector<float> values = Normal(rows * columns, random);
-  values[7] = 80;  // large logits must not overflow
-  const std::vector<float> logits = values;
-  dense_kernels::SoftmaxRowsInPlace(values.data(), rows, columns);
+  std::vector<float> logits = Normal(rows * columns, random);
+  logits[7] = 80;  // large logits must not overflow
+  const std::vector<float> values = SoftmaxRows(logits.data(), rows, columns);
   for (int64_t r = 0; r < rows; ++r) {
     const float* row = values.data() + r * columns;
     double sum = 0;
@@ -167,8 +214,8 @@ TEST(DenseKernelsTest, SoftmaxRowsGiveTrailingMissingValuesNothing) {
     double reference_sum = 0;
     for (const float value : prefix) reference_sum += std::exp(double{value});
     const std::vector<float> logits = prefix;
-    dense_kernels::SoftmaxRowsInPlace(row.data(), 1, columns);
-    dense_kernels::SoftmaxRowsInPlace(prefix.data(), 1, live);
+    row = SoftmaxRows(row.data(), 1, columns);
+    prefix = SoftmaxRows(prefix.data(), 1, live);
     for (int64_t i = 0; i < columns; ++i) {
       if (i >= live) {
         EXPECT_EQ(row[i], 0.0f) << i;
@@ -288,9 +335,8 @@ TEST(DenseKernelsTest, ResultsDoNotDependOnAlignment) {
     std::vector<float> buffer(offset + columns);
     std::copy(row.begin(), row.end(), buffer.begin() + offset);
     std::vector<float> elu_buffer = buffer;
-    dense_kernels::SoftmaxRowsInPlace(buffer.data() + offset, 1, columns);
+    const std::vector<float> softmax = SoftmaxRows(buffer.data() + offset, 1, columns);
     dense_kernels::EluInPlace(elu_buffer.data() + offset, columns);
-    const std::vector<float> softmax(buffer.begin() + offset, buffer.end());
     const std::vector<float> elu(elu_buffer.begin() + offset, elu_buffer.end());
     if (offset == 0) {
       first_softmax = softmax;

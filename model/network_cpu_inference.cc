@@ -491,15 +491,18 @@ class CpuForwardPass {
   void ChooseLabels(int depth, int64_t begin, int64_t end, float* logits) {
     if (end <= begin) return;
     const int64_t branching = shape_.branching;
-    dense_kernels::SoftmaxRowsInPlace(logits, end - begin, branching);
+    thread_local std::vector<dense_kernels::SoftmaxNormalizer> normalizers;
+    normalizers.resize(end - begin);
+    dense_kernels::SoftmaxNormalizers(logits, end - begin, branching, normalizers.data());
     for (int64_t i = begin; i < end; ++i) {
       const int64_t row = keyed_rows_[i].second;
-      const float* probabilities = logits + (i - begin) * branching;
+      const float* row_logits = logits + (i - begin) * branching;
       const int slot = masks_ ? masks_->SlotOfK(static_cast<size_t>(row / num_descriptors_)) : -1;
       const int64_t parent = parent_node_[row];
-      const int64_t best = ChooseLabel(probabilities, branching, masks_.get(), slot, parent, tree_);
+      const int64_t best = ChooseLabel(row_logits, branching, masks_.get(), slot, parent, tree_);
       LabelOf(row, depth) = static_cast<uint8_t>(best);
-      result_.confidences.data()[row] *= probabilities[best];
+      result_.confidences.data()[row] *=
+          dense_kernels::SoftmaxOf(row_logits[best], normalizers[i - begin]);
       parent_node_[row] = ChildNode(parent, best, tree_);
     }
   }

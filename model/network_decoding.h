@@ -82,10 +82,9 @@ class NodeVisibilityMasks {
 
 // The label a row takes at one level: the most probable child, or with a mask slot (>= 0) and a
 // known parent node, the most probable among the children the mask keeps (the plain argmax when it
-// keeps none).
-inline int64_t ChooseLabel(const float* probabilities, int64_t branching,
-                           const NodeVisibilityMasks* masks, int slot, int64_t parent,
-                           const LabelTree& tree) {
+// keeps none). `scores` are the children's probabilities or their logits, in the same order.
+inline int64_t ChooseLabel(const float* scores, int64_t branching, const NodeVisibilityMasks* masks,
+                           int slot, int64_t parent, const LabelTree& tree) {
   int64_t best = -1;
   if (masks != nullptr && slot >= 0 && parent >= 0) {
     const uint32_t first = tree.FirstChild(static_cast<uint32_t>(parent));
@@ -97,11 +96,11 @@ inline int64_t ChooseLabel(const float* probabilities, int64_t branching,
       for (uint64_t bits = masks->Bits(slot, first + static_cast<uint32_t>(base), count); bits != 0;
            bits &= bits - 1) {
         const int64_t c = base + __builtin_ctzll(bits);
-        if (best < 0 || probabilities[c] > probabilities[best]) best = c;
+        if (best < 0 || scores[c] > scores[best]) best = c;
       }
     }
   }
-  if (best < 0) best = std::max_element(probabilities, probabilities + branching) - probabilities;
+  if (best < 0) best = std::max_element(scores, scores + branching) - scores;
   return best;
 }
 
