@@ -458,7 +458,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
       if (query.global_descriptor.has_value()) {
         global_descriptor = *query.global_descriptor;
       } else if (query.descriptors.rows() > 0) {
-        global_descriptor = map_->vlad()->Encode(query.descriptors);
+        global_descriptor = map_->vlad()->Encode(query.descriptors, ComputeThreads());
       }
       result.candidates = Retrieve(global_descriptor, options.top_k, {});
     }

@@ -228,6 +228,8 @@ void VladEncoder::TrainWhitening(size_t num_whitening_images, const ImageReader&
     projection_.row(j).cwiseAbs().maxCoeff(&largest_entry);
     if (projection_(j, largest_entry) < 0) projection_.row(j) *= -1.0f;
   }
+  half_projection_ =
+      vlad_kernels::ToHalfPrecisionRows(projection_.data(), projection_.rows(), projection_.cols());
 }
 
 int VladEncoder::descriptor_dim() const { return static_cast<int>(centroids_.cols()); }
@@ -248,23 +250,22 @@ Eigen::VectorXf VladEncoder::EncodeUnwhitened(const DescriptorMatrix& local_desc
         "VLAD: local descriptors have dimension {} but the codebook was trained on dimension {}",
         local_descriptors.cols(), dim);
   }
-  RowMajorMatrixXf residuals = RowMajorMatrixXf::Zero(centroids_.rows(), dim);
-  Eigen::VectorXf x(dim);
-  Eigen::VectorXf scores(centroids_.rows());
+  // The unit descriptors (a zero one has no direction to contribute), then every one's nearest
+  // word in one pass of the kernel.
+  RowMajorMatrixXf units(local_descriptors.rows(), dim);
+  Eigen::Index num_units = 0;
   for (Eigen::Index r = 0; r < local_descriptors.rows(); ++r) {
-    x = local_descriptors.row(r).transpose();
-    const float norm = x.norm();
+    const float norm = local_descriptors.row(r).norm();
     if (!std::isfinite(norm)) ThrowInvalidArgument("VLAD: local descriptor {} is not finite", r);
-    // A zero descriptor has no direction to contribute.
-    if (norm == 0) continue;
-    x /= norm;
-    // A matrix-vector product per descriptor, not one GEMM per image: Eigen would hand a GEMM to
-    // OpenMP threads, and encoding already runs on the callers' threads.
-    scores.noalias() = centroids_ * x;
-    scores -= centroid_half_squared_norms_;
-    Eigen::Index word = 0;
-    scores.maxCoeff(&word);
-    residuals.row(word) += x.transpose() - centroids_.row(word);
+    if (norm > 0) units.row(num_units++) = local_descriptors.row(r) / norm;
+  }
+  std::vector<int32_t> words(num_units);
+  vlad_kernels::NearestWords(units.data(), num_units, centroids_.data(),
+                             centroid_half_squared_norms_.data(), centroids_.rows(), dim,
+                             words.data());
+  RowMajorMatrixXf residuals = RowMajorMatrixXf::Zero(centroids_.rows(), dim);
+  for (Eigen::Index r = 0; r < num_units; ++r) {
+    residuals.row(words[r]) += units.row(r) - centroids_.row(words[r]);
   }
   // Intra-normalization (Arandjelovic and Zisserman, "All about VLAD", CVPR 2013) keeps a few
   // bursty words (repeated facades) from dominating the descriptor.
@@ -281,12 +282,24 @@ Eigen::VectorXf VladEncoder::EncodeUnwhitened(const DescriptorMatrix& local_desc
   return vlad;
 }
 
-Eigen::VectorXf VladEncoder::Encode(const DescriptorMatrix& local_descriptors) const {
+Eigen::VectorXf VladEncoder::Encode(const DescriptorMatrix& local_descriptors,
+                                    int num_threads) const {
   Eigen::VectorXf vlad = EncodeUnwhitened(local_descriptors);
   if (projection_.size() == 0) return vlad;
   // Whitening would move the zero vector of an empty image to an arbitrary direction.
   if (vlad.squaredNorm() == 0) return Eigen::VectorXf::Zero(projection_.rows());
-  Eigen::VectorXf whitened = projection_ * (vlad - pca_mean_);
+  const Eigen::VectorXf centered = vlad - pca_mean_;
+  Eigen::VectorXf whitened(projection_.rows());
+  // Blocks of rows on the threads: one core alone does not reach the memory's bandwidth.
+  constexpr int64_t kRowsPerBlock = 64;
+  const int64_t rows = half_projection_.rows;
+  ParallelFor((rows + kRowsPerBlock - 1) / kRowsPerBlock, num_threads,
+              [&](size_t first, size_t last) {
+                const int64_t begin = static_cast<int64_t>(first) * kRowsPerBlock;
+                const int64_t end = std::min(rows, static_cast<int64_t>(last) * kRowsPerBlock);
+                vlad_kernels::HalfPrecisionRowsTimes(half_projection_, centered.data(), begin, end,
+                                                     whitened.data() + begin);
+              });
   const float norm = whitened.norm();
   if (norm > 0) whitened /= norm;
   return whitened;
@@ -358,6 +371,8 @@ VladEncoder VladEncoder::Read(std::istream& stream, const std::string& source) {
     ReadMatrix(stream, encoder.pca_mean_, source, "PCA mean");
     encoder.projection_.resize(out_dim, vlad_dim);
     ReadMatrix(stream, encoder.projection_, source, "PCA projection");
+    encoder.half_projection_ =
+        vlad_kernels::ToHalfPrecisionRows(encoder.projection_.data(), out_dim, vlad_dim);
   }
   return encoder;
 }

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "retrieval/vlad_kernels.h"
 #include "scene/features.h"
 
 namespace hscloc {
@@ -60,8 +61,9 @@ class VladEncoder {
 
   // The global descriptor of one image (unit length). Throws when the descriptor dimension differs
   // from the codebook's or a descriptor is not finite. An image without descriptors (zero rows, of
-  // any column count) gives the zero vector. Thread-safe.
-  Eigen::VectorXf Encode(const DescriptorMatrix& local_descriptors) const;
+  // any column count) gives the zero vector. Thread-safe; the whitening runs on up to
+  // `num_threads` threads (<= 0: all cores), the same result on any number.
+  Eigen::VectorXf Encode(const DescriptorMatrix& local_descriptors, int num_threads = 1) const;
 
   const VladOptions& options() const { return options_; }
 
@@ -85,6 +87,9 @@ class VladEncoder {
   // Whitening (both empty when off): y = projection_ * (vlad - pca_mean_), then L2.
   Eigen::VectorXf pca_mean_;                                                          // K*D
   Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> projection_;  // out x K*D
+  // The projection Encode reads, in half precision (vlad_kernels.h); projection_ is what Write
+  // saves, so that a map read and written again keeps its bits.
+  vlad_kernels::HalfPrecisionRows half_projection_;
 };
 
 }  // namespace hscloc

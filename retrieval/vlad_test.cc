@@ -121,6 +121,21 @@ TEST(VladEncoderTest, OutputIsUnitLengthWithAndWithoutWhitening) {
   }
 }
 
+// The whitening's rows are split across threads in blocks: an encoding must not depend on how
+// many, to the bit, or a query would retrieve differently on a busier server.
+TEST(VladEncoderTest, EncodingIsTheSameOnAnyNumberOfThreads) {
+  const PlaceViews data = MakePlaceViews(50, 3, 6);
+  VladOptions options = SmallOptions();
+  options.whitened_dim = 140;  // several blocks of rows
+  const VladEncoder encoder = VladEncoder::Train(data.views, options);
+  ASSERT_EQ(encoder.output_dim(), 140);
+  for (size_t i = 0; i < data.views.size(); i += 15) {
+    const Eigen::VectorXf one = encoder.Encode(data.views[i], 1);
+    EXPECT_EQ(one, encoder.Encode(data.views[i], 3)) << "view " << i;
+    EXPECT_EQ(one, encoder.Encode(data.views[i], 0)) << "view " << i;
+  }
+}
+
 TEST(VladEncoderTest, InputScaleDoesNotMatter) {
   // SIFT arrives as 0..255 floats, SuperPoint as unit vectors: both are L2-normalized first.
   const PlaceViews unit = MakePlaceViews(8, 2, 2);
