@@ -85,6 +85,26 @@ TEST(VladKernelsTest, RepresentableEntriesAreStoredExactly) {
   }
 }
 
+// Narrowing rounds to nearest, ties to even: with the row's largest entry 1 (scale 1), the product
+// with a unit vector reads one stored entry back. Between 0.75 and 1 half precision steps by 2^-11.
+TEST(VladKernelsTest, NarrowingRoundsToNearestEven) {
+  const float step = std::ldexp(1.0f, -11);
+  const std::vector<float> row = {1.0f,
+                                  0.75f + step / 2,                          // tie: down to even
+                                  0.75f + 3 * step / 2,                      // tie: up to even
+                                  0.75f + step / 2 + std::ldexp(1.0f, -20),  // above the tie: up
+                                  -(0.75f + 3 * step / 2),                   // the sign kept
+                                  0.75f + step / 4};                         // below: down
+  const std::vector<float> expected = {
+      1.0f, 0.75f, 0.75f + 2 * step, 0.75f + step, -(0.75f + 2 * step), 0.75f};
+  const auto columns = static_cast<int64_t>(row.size());
+  for (int64_t c = 0; c < columns; ++c) {
+    std::vector<float> unit(columns, 0.0f);
+    unit[c] = 1.0f;
+    EXPECT_EQ(HalfPrecisionProduct(row, 1, columns, unit)[0], expected[c]) << "entry " << c;
+  }
+}
+
 // A row's result is the same bits whichever range it is asked in (groups of rows or alone), so
 // that splitting rows across threads cannot change an encoding; a zero row gives zero.
 TEST(VladKernelsTest, ARowGivesTheSameBitsInAnyRange) {
