@@ -11,17 +11,14 @@
 #include <vector>
 
 #include "util/random.h"
+#include "util/testing.h"
 
 namespace hscloc {
 namespace {
 
 using RowMajor = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
-std::vector<float> Normal(int64_t count, Random& random) {
-  std::vector<float> values(count);
-  for (float& value : values) value = static_cast<float>(random.Normal());
-  return values;
-}
+using testing::NormalFloats;
 
 float EluReference(float x) { return x > 0 ? x : std::expm1(x); }
 
@@ -45,9 +42,9 @@ TEST(DenseKernelsTest, LinearMatchesAReferenceProductForAnyShape) {
     for (int64_t k : {5, 16, 40}) {
       for (int64_t n : {1, 12, 100}) {
         for (bool elu : {false, true}) {
-          const std::vector<float> in = Normal(m * k, random);
-          const std::vector<float> weight = Normal(n * k, random);
-          const std::vector<float> bias = Normal(n, random);
+          const std::vector<float> in = NormalFloats(m * k, random);
+          const std::vector<float> weight = NormalFloats(n * k, random);
+          const std::vector<float> bias = NormalFloats(n, random);
           std::vector<float> out(m * n);
           dense_kernels::Linear(in.data(), m, dense_kernels::PackMatrix(weight.data(), n, k),
                                 bias.data(), elu, out.data());
@@ -75,9 +72,9 @@ TEST(DenseKernelsTest, PackedLinearIsTheOrderedFusedChainOfEveryOutput) {
   for (int64_t m : {1, 5, 12, 13, 29}) {
     for (int64_t k : {1, 7, 64}) {
       for (int64_t n : {int64_t{1}, panel - 1, panel, panel + 3, 2 * panel + 5}) {
-        const std::vector<float> in = Normal(m * k, random);
-        const std::vector<float> weight = Normal(n * k, random);
-        const std::vector<float> bias = Normal(n, random);
+        const std::vector<float> in = NormalFloats(m * k, random);
+        const std::vector<float> weight = NormalFloats(n * k, random);
+        const std::vector<float> bias = NormalFloats(n, random);
         const dense_kernels::PackedMatrix packed = dense_kernels::PackMatrix(weight.data(), n, k);
         for (bool elu : {false, true}) {
           std::vector<float> out(m * n, std::numeric_limits<float>::quiet_NaN());
@@ -111,9 +108,9 @@ TEST(DenseKernelsTest, PackedLinearIsTheOrderedFusedChainOfEveryOutput) {
 TEST(DenseKernelsTest, PackedLinearGivesARowTheSameBitsAloneAsInABlock) {
   Random random(4);
   const int64_t m = 31, k = 96, n = 70;
-  const std::vector<float> in = Normal(m * k, random);
-  const std::vector<float> weight = Normal(n * k, random);
-  const std::vector<float> bias = Normal(n, random);
+  const std::vector<float> in = NormalFloats(m * k, random);
+  const std::vector<float> weight = NormalFloats(n * k, random);
+  const std::vector<float> bias = NormalFloats(n, random);
   const dense_kernels::PackedMatrix packed = dense_kernels::PackMatrix(weight.data(), n, k);
   std::vector<float> block(m * n);
   dense_kernels::Linear(in.data(), m, packed, bias.data(), true, block.data());
@@ -127,9 +124,9 @@ TEST(DenseKernelsTest, PackedLinearGivesARowTheSameBitsAloneAsInABlock) {
 TEST(DenseKernelsTest, ModulateEluGathersRowsAndModulates) {
   Random random(2);
   const int64_t columns = 37;  // not a multiple of any vector width: exercises the tail
-  const std::vector<float> source = Normal(6 * columns, random);
-  const std::vector<float> gamma = Normal(3 * columns, random);
-  const std::vector<float> beta = Normal(3 * columns, random);
+  const std::vector<float> source = NormalFloats(6 * columns, random);
+  const std::vector<float> gamma = NormalFloats(3 * columns, random);
+  const std::vector<float> beta = NormalFloats(3 * columns, random);
   const std::vector<int64_t> source_rows = {5, 0, 5, 2};
   const std::vector<int32_t> modulation_rows = {2, 2, 0, 1};
   std::vector<float> out(4 * columns);
@@ -183,7 +180,7 @@ TEST(DenseKernelsTest, SoftmaxRowsArePositiveAndSumToOne) {
   Random random(3);
   const int64_t rows = 5;
   const int64_t columns = 100;
-  std::vector<float> logits = Normal(rows * columns, random);
+  std::vector<float> logits = NormalFloats(rows * columns, random);
   logits[7] = 80;  // large logits must not overflow
   const std::vector<float> values = SoftmaxRows(logits.data(), rows, columns);
   for (int64_t r = 0; r < rows; ++r) {
@@ -207,8 +204,8 @@ TEST(DenseKernelsTest, SoftmaxRowsGiveTrailingMissingValuesNothing) {
   Random random(5);
   const int64_t columns = 100;
   for (const int64_t live : {1, 5, 16, 17, 40, 99}) {
-    SCOPED_TRACE(testing::Message() << live << " live columns");
-    std::vector<float> row = Normal(columns, random);
+    SCOPED_TRACE(::testing::Message() << live << " live columns");
+    std::vector<float> row = NormalFloats(columns, random);
     std::fill(row.begin() + live, row.end(), -std::numeric_limits<float>::infinity());
     std::vector<float> prefix(row.begin(), row.begin() + live);
     double reference_sum = 0;
@@ -239,14 +236,14 @@ void ExpectEachChildsBestSegment(PoolingKernel kernel,
   const int64_t columns = 12;
   for (const int64_t dim : {1, 3, 16, 33}) {
     for (const int64_t inputs : {1, 5, 16, 17, 40}) {
-      const std::vector<float> projected = Normal(inputs * dim, random);
+      const std::vector<float> projected = NormalFloats(inputs * dim, random);
       std::vector<uint32_t> starts = {0};
       std::vector<uint8_t> groups;
       for (int64_t segment = 0; segment < 16; ++segment) {
         starts.push_back(starts.back() + 1 + static_cast<uint32_t>(segment));
         groups.push_back(static_cast<uint8_t>((segment * 5) % columns));
       }
-      const std::vector<float> rows = Normal(int64_t{starts.back()} * (dim + 1), random);
+      const std::vector<float> rows = NormalFloats(int64_t{starts.back()} * (dim + 1), random);
       std::vector<float> out(inputs * columns, -std::numeric_limits<float>::infinity());
       const int64_t kept_input = inputs / 2;
       out[kept_input * columns + groups[3]] = 1e6f;
@@ -302,15 +299,15 @@ TEST(DenseKernelsTest, PooledLogitsDoNotDependOnTheInputsPlace) {
   Random random(6);
   const int64_t dim = 16;
   const int64_t columns = 3;
-  const std::vector<float> input = Normal(dim, random);
+  const std::vector<float> input = NormalFloats(dim, random);
   const std::vector<uint32_t> starts = {0, 7, 8, 20};
   const std::vector<uint8_t> groups = {0, 2, 1};
-  const std::vector<float> rows = Normal(20 * (dim + 1), random);
+  const std::vector<float> rows = NormalFloats(20 * (dim + 1), random);
   for (const PoolingKernel kernel :
        {dense_kernels::PooledMaxLogits, dense_kernels::BestPointLogSumExpLogits}) {
     std::vector<float> first;
     for (int64_t place = 0; place < 21; ++place) {
-      std::vector<float> projected = Normal(21 * dim, random);
+      std::vector<float> projected = NormalFloats(21 * dim, random);
       std::copy(input.begin(), input.end(), projected.begin() + place * dim);
       std::vector<float> out(21 * columns, -std::numeric_limits<float>::infinity());
       kernel(projected.data(), 21, dim, rows.data(), starts.data(), groups.data(), 3, columns,
@@ -328,7 +325,7 @@ TEST(DenseKernelsTest, PooledLogitsDoNotDependOnTheInputsPlace) {
 TEST(DenseKernelsTest, ResultsDoNotDependOnAlignment) {
   Random random(4);
   const int64_t columns = 100;
-  const std::vector<float> row = Normal(columns, random);
+  const std::vector<float> row = NormalFloats(columns, random);
   std::vector<float> first_softmax;
   std::vector<float> first_elu;
   for (int offset = 0; offset < 16; ++offset) {

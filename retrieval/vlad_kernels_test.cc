@@ -6,15 +6,12 @@
 #include <vector>
 
 #include "util/random.h"
+#include "util/testing.h"
 
 namespace hscloc {
 namespace {
 
-std::vector<float> Normal(int64_t count, Random& random, double scale = 1) {
-  std::vector<float> values(count);
-  for (float& value : values) value = static_cast<float>(scale * random.Normal());
-  return values;
-}
+using testing::NormalFloats;
 
 // <row r, x> in double precision.
 double ReferenceDot(const std::vector<float>& matrix, int64_t r, int64_t columns,
@@ -44,10 +41,11 @@ TEST(VladKernelsTest, HalfPrecisionRowsTimesFollowsTheFullPrecisionProduct) {
       // Rows of very different scales: each keeps its precision through its own scale.
       std::vector<float> matrix;
       for (int64_t r = 0; r < rows; ++r) {
-        const std::vector<float> row = Normal(columns, random, std::pow(10.0, 4 * (r % 3) - 4));
+        const std::vector<float> row =
+            NormalFloats(columns, random, std::pow(10.0, 4 * (r % 3) - 4));
         matrix.insert(matrix.end(), row.begin(), row.end());
       }
-      const std::vector<float> x = Normal(columns, random);
+      const std::vector<float> x = NormalFloats(columns, random);
       const std::vector<float> out = HalfPrecisionProduct(matrix, rows, columns, x);
       for (int64_t r = 0; r < rows; ++r) {
         double largest = 0;
@@ -77,7 +75,7 @@ TEST(VladKernelsTest, RepresentableEntriesAreStoredExactly) {
     }
     matrix[r * columns] = static_cast<float>(std::ldexp(1024.0, static_cast<int>(r) - 3));
   }
-  const std::vector<float> x = Normal(columns, random);
+  const std::vector<float> x = NormalFloats(columns, random);
   const std::vector<float> out = HalfPrecisionProduct(matrix, rows, columns, x);
   for (int64_t r = 0; r < rows; ++r) {
     const double reference = ReferenceDot(matrix, r, columns, x);
@@ -111,9 +109,9 @@ TEST(VladKernelsTest, ARowGivesTheSameBitsInAnyRange) {
   Random random(3);
   const int64_t rows = 11;
   const int64_t columns = 70;
-  std::vector<float> matrix = Normal(rows * columns, random);
+  std::vector<float> matrix = NormalFloats(rows * columns, random);
   std::fill(matrix.begin() + 5 * columns, matrix.begin() + 6 * columns, 0.0f);
-  const std::vector<float> x = Normal(columns, random);
+  const std::vector<float> x = NormalFloats(columns, random);
   const vlad_kernels::HalfPrecisionRows half =
       vlad_kernels::ToHalfPrecisionRows(matrix.data(), rows, columns);
   std::vector<float> all(rows);
@@ -137,7 +135,7 @@ TEST(VladKernelsTest, NearestWordsIsTheBruteForceNearestCentroid) {
   for (const int64_t count : {1, 15, 16, 33}) {
     for (const int64_t words : {1, 7, 8, 20}) {
       const int64_t dim = 24;
-      std::vector<float> centroids = Normal(words * dim, random);
+      std::vector<float> centroids = NormalFloats(words * dim, random);
       if (words > 3) std::copy_n(centroids.begin(), dim, centroids.begin() + 3 * dim);
       std::vector<float> half_squared_norms(words);
       for (int64_t w = 0; w < words; ++w) {
@@ -146,7 +144,7 @@ TEST(VladKernelsTest, NearestWordsIsTheBruteForceNearestCentroid) {
           norm += double{centroids[w * dim + d]} * centroids[w * dim + d];
         half_squared_norms[w] = static_cast<float>(norm / 2);
       }
-      std::vector<float> descriptors = Normal(count * dim, random);
+      std::vector<float> descriptors = NormalFloats(count * dim, random);
       // A descriptor on a duplicated centroid: words 0 and 3 tie.
       if (words > 3) std::copy_n(centroids.begin(), dim, descriptors.begin());
       std::vector<int32_t> nearest(count, -1);

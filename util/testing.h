@@ -8,6 +8,9 @@
 #include <functional>
 #include <optional>
 #include <string>
+#include <vector>
+
+#include "util/random.h"
 
 namespace hscloc::testing {
 
@@ -34,6 +37,13 @@ std::optional<std::filesystem::path> RealDataDir(const std::string& subdirectory
 // `city/` (COLMAP model, features.h5, queries) and `map/` (the bundle with its network). From
 // HSCLOC_TRAINED_SMALL_CITY or the build's default; nullopt until the fixture has run.
 std::optional<std::filesystem::path> TrainedSmallCityDir();
+
+// `count` normal values of standard deviation `stddev`, as floats (kernel inputs).
+inline std::vector<float> NormalFloats(int64_t count, Random& random, double stddev = 1) {
+  std::vector<float> values(count);
+  for (float& value : values) value = static_cast<float>(stddev * random.Normal());
+  return values;
+}
 
 // The COLMAP executable (HSCLOC_COLMAP, set by ctest), or nullopt.
 std::optional<std::string> ColmapExecutable();
