@@ -1,8 +1,12 @@
 #include "localization/pooled_matches.h"
 
 #include <algorithm>
+#include <cstdint>
+#include <utility>
+#include <vector>
 
 #include "util/check.h"
+#include "util/radix_sort.h"
 
 namespace hscloc {
 
@@ -24,34 +28,35 @@ CandidateMatches UniteMatches(const std::vector<const CandidateMatches*>& parts)
     total += part->size();
   }
 
-  struct Entry {
-    int keypoint;
-    uint32_t point;
-    float confidence;
-  };
-  std::vector<Entry> entries;
-  entries.reserve(total);
+  // Pairs grouped by one linear-time sort of (keypoint, point) packed in an integer: a comparison
+  // sort of the pool took 0.7 ms of a city query's pose stage. A pair keeps its most confident
+  // entry (ties: the first).
+  std::vector<std::pair<int64_t, int64_t>> by_pair;  // (keypoint, point) packed; entry
+  std::vector<float> confidences;                    // by entry
+  by_pair.reserve(total);
+  if (confident) confidences.reserve(total);
   for (const CandidateMatches* part : parts) {
     for (size_t i = 0; i < part->size(); ++i) {
-      entries.push_back(
-          {part->keypoints[i], part->point_indices[i], confident ? part->confidences[i] : 0.0f});
+      THROW_CHECK_MSG(part->keypoints[i] >= 0, "UniteMatches: keypoint {} is negative",
+                      part->keypoints[i]);
+      const auto key = static_cast<int64_t>(part->keypoints[i]) << 32 | part->point_indices[i];
+      by_pair.emplace_back(key, static_cast<int64_t>(by_pair.size()));
+      if (confident) confidences.push_back(part->confidences[i]);
     }
   }
-  // Highest confidence first within a pair, so that the first of each run is the one kept.
-  std::sort(entries.begin(), entries.end(), [](const Entry& a, const Entry& b) {
-    if (a.keypoint != b.keypoint) return a.keypoint < b.keypoint;
-    if (a.point != b.point) return a.point < b.point;
-    return a.confidence > b.confidence;
-  });
+  std::vector<std::pair<int64_t, int64_t>> scratch;
+  StableSortByKey(by_pair, scratch);
   CandidateMatches united;
-  for (size_t i = 0; i < entries.size(); ++i) {
-    if (i > 0 && entries[i].keypoint == entries[i - 1].keypoint &&
-        entries[i].point == entries[i - 1].point) {
+  for (size_t i = 0; i < by_pair.size(); ++i) {
+    const float confidence = confident ? confidences[by_pair[i].second] : 0.0f;
+    if (i > 0 && by_pair[i].first == by_pair[i - 1].first) {
+      if (confident && confidence > united.confidences.back())
+        united.confidences.back() = confidence;
       continue;
     }
-    united.keypoints.push_back(entries[i].keypoint);
-    united.point_indices.push_back(entries[i].point);
-    if (confident) united.confidences.push_back(entries[i].confidence);
+    united.keypoints.push_back(static_cast<int>(by_pair[i].first >> 32));
+    united.point_indices.push_back(static_cast<uint32_t>(by_pair[i].first & 0xffffffff));
+    if (confident) united.confidences.push_back(confidence);
   }
   return united;
 }

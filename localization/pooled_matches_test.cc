@@ -3,6 +3,8 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <map>
 #include <set>
 #include <stdexcept>
 #include <utility>
@@ -65,6 +67,44 @@ TEST(PooledMatches, UnionOfRandomPartsIsTheSetOfTheirPairs) {
   }
 }
 
+// Confident parts over the whole range of point indices: each pair keeps its highest confidence.
+TEST(PooledMatches, RandomConfidentPartsKeepEachPairsHighestConfidence) {
+  Random random(11);
+  for (int trial = 0; trial < 20; ++trial) {
+    std::vector<CandidateMatches> parts(1 + static_cast<int>(random.UniformInt(6)));
+    std::map<std::pair<int, uint32_t>, float> expected;
+    for (CandidateMatches& part : parts) {
+      const int size = static_cast<int>(random.UniformInt(400));
+      for (int i = 0; i < size; ++i) {
+        const int keypoint = static_cast<int>(random.UniformInt(3000));
+        // Few distinct points per keypoint, some near the top of the index range.
+        const uint32_t point = random.Bernoulli(0.5)
+                                   ? static_cast<uint32_t>(random.UniformInt(4))
+                                   : 0xffffffffu - static_cast<uint32_t>(random.UniformInt(4));
+        // Coarse confidences: equal ones are frequent.
+        const float confidence = static_cast<float>(random.UniformInt(8)) / 8.0f;
+        part.keypoints.push_back(keypoint);
+        part.point_indices.push_back(point);
+        part.confidences.push_back(confidence);
+        const auto [it, inserted] = expected.emplace(std::make_pair(keypoint, point), confidence);
+        if (!inserted) it->second = std::max(it->second, confidence);
+      }
+    }
+    std::vector<const CandidateMatches*> pointers;
+    for (const CandidateMatches& part : parts) pointers.push_back(&part);
+    const CandidateMatches united = UniteMatches(pointers);
+    ASSERT_EQ(united.size(), expected.size());
+    ASSERT_EQ(united.confidences.size(), expected.size());
+    size_t i = 0;
+    for (const auto& [pair, confidence] : expected) {
+      EXPECT_EQ(united.keypoints[i], pair.first);
+      EXPECT_EQ(united.point_indices[i], pair.second);
+      EXPECT_EQ(united.confidences[i], confidence);
+      ++i;
+    }
+  }
+}
+
 TEST(PooledMatches, MixedOrMalformedPartsThrow) {
   const CandidateMatches confident{{0}, {1}, {0.5f}};
   const CandidateMatches plain{{1}, {2}, {}};
@@ -72,6 +112,8 @@ TEST(PooledMatches, MixedOrMalformedPartsThrow) {
   const CandidateMatches short_points{{0, 1}, {1}, {}};
   EXPECT_THROW(UniteMatches({&short_points}), std::invalid_argument);
   EXPECT_THROW(UniteMatches({nullptr}), std::invalid_argument);
+  const CandidateMatches negative_keypoint{{-1}, {2}, {}};
+  EXPECT_THROW(UniteMatches({&negative_keypoint}), std::invalid_argument);
 }
 
 }  // namespace

@@ -4,8 +4,10 @@
 #include <cmath>
 #include <cstdint>
 #include <utility>
+#include <vector>
 
 #include "util/check.h"
+#include "util/radix_sort.h"
 
 namespace hscloc {
 namespace {
@@ -13,32 +15,34 @@ namespace {
 // The match `score` ranks highest for each point (ties: the first), in keypoint order.
 template <typename Score>
 CandidateMatches BestKeypointPerPoint(const CandidateMatches& predictions, Score score) {
-  // Matches grouped by point through one sort of (point, match) packed in an integer: a hash map
-  // of the points took most of the visibility stage.
-  std::vector<uint64_t> by_point(predictions.size());
+  // Matches grouped by point through one linear-time sort (a hash map of the points took most of
+  // the visibility stage, a comparison sort most of what was left); equal points keep match order.
+  std::vector<std::pair<int64_t, int64_t>> by_point(predictions.size());
   for (size_t i = 0; i < predictions.size(); ++i) {
-    by_point[i] = uint64_t{predictions.point_indices[i]} << 32 | i;
+    by_point[i] = {predictions.point_indices[i], static_cast<int64_t>(i)};
   }
-  std::sort(by_point.begin(), by_point.end());
-  std::vector<size_t> kept;
+  std::vector<std::pair<int64_t, int64_t>> scratch;
+  StableSortByKey(by_point, scratch);
+  // The kept matches, each as (keypoint, match) packed, to be put in that order.
+  std::vector<std::pair<int64_t, int64_t>> kept;
   double kept_score = 0;
   for (size_t j = 0; j < by_point.size(); ++j) {
-    const size_t match = by_point[j] & 0xffffffffu;
+    const auto match = static_cast<size_t>(by_point[j].second);
     const double match_score = score(match);
-    if (j == 0 || by_point[j] >> 32 != by_point[j - 1] >> 32) {
-      kept.push_back(match);
+    const int64_t keypoint_then_match =
+        static_cast<int64_t>(predictions.keypoints[match]) << 32 | static_cast<int64_t>(match);
+    if (j == 0 || by_point[j].first != by_point[j - 1].first) {
+      kept.emplace_back(keypoint_then_match, 0);
       kept_score = match_score;
     } else if (match_score > kept_score) {
-      kept.back() = match;
+      kept.back().first = keypoint_then_match;
       kept_score = match_score;
     }
   }
-  std::sort(kept.begin(), kept.end(), [&](size_t a, size_t b) {
-    return predictions.keypoints[a] != predictions.keypoints[b]
-               ? predictions.keypoints[a] < predictions.keypoints[b]
-               : a < b;
-  });
-  return SelectMatches(predictions, kept);
+  StableSortByKey(kept, scratch);
+  std::vector<size_t> kept_matches(kept.size());
+  for (size_t j = 0; j < kept.size(); ++j) kept_matches[j] = kept[j].first & 0xffffffff;
+  return SelectMatches(predictions, kept_matches);
 }
 
 void CheckConfidences(const CandidateMatches& predictions) {
