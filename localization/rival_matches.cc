@@ -19,6 +19,8 @@ CandidateMatches BestKeypointPerPoint(const CandidateMatches& predictions, Score
   // the visibility stage, a comparison sort most of what was left); equal points keep match order.
   std::vector<std::pair<int64_t, int64_t>> by_point(predictions.size());
   for (size_t i = 0; i < predictions.size(); ++i) {
+    THROW_CHECK_MSG(predictions.keypoints[i] >= 0, "match {} has keypoint {}, negative", i,
+                    predictions.keypoints[i]);
     by_point[i] = {predictions.point_indices[i], static_cast<int64_t>(i)};
   }
   std::vector<std::pair<int64_t, int64_t>> scratch;

@@ -30,6 +30,8 @@ TEST(RivalMatches, MostConfidentKeypointStandsForItsPoint) {
   EXPECT_EQ(MostConfidentKeypointPerPoint({}).size(), 0u);
   EXPECT_THROW(MostConfidentKeypointPerPoint(Predictions({0, 1}, {7, 7}, {})),
                std::invalid_argument);
+  EXPECT_THROW(MostConfidentKeypointPerPoint(Predictions({0, -1}, {7, 7}, {0.5f, 0.6f})),
+               std::invalid_argument);
 }
 
 // Against a brute-force reference on many rivals: for each point, the first of its most

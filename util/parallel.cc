@@ -7,6 +7,7 @@
 #include <exception>
 #include <memory>
 #include <mutex>
+#include <system_error>
 #include <thread>
 
 namespace hscloc {
@@ -69,11 +70,20 @@ class ThreadPool {
     return *pool;
   }
 
-  // Queues `helpers` tasks that each run the loop's chunks, starting threads up to that many.
+  // Queues up to `helpers` tasks that each run the loop's chunks, starting threads up to that
+  // many. Where the system refuses a thread, the loop gets the threads there are: its caller does
+  // the rest.
   void Help(const std::shared_ptr<LoopState>& loop, size_t helpers) {
     std::lock_guard<std::mutex> lock(mutex_);
-    for (; started_threads_ < helpers; ++started_threads_)
-      std::thread([this] { Serve(); }).detach();
+    while (started_threads_ < helpers) {
+      try {
+        std::thread([this] { Serve(); }).detach();
+      } catch (const std::system_error&) {
+        break;
+      }
+      ++started_threads_;
+    }
+    helpers = std::min(helpers, started_threads_);
     for (size_t i = 0; i < helpers; ++i) tasks_.push_back(loop);
     if (helpers == 1) {
       work_ready_.notify_one();
