@@ -84,13 +84,14 @@ json RunColmapRegistration(const BenchOptions& options, const fs::path& set_dir,
 }
 
 // HSC needs the bundle without the observations' descriptors; the nearest-neighbour matcher needs
-// them and not the network.
+// them and neither the network nor the points' descriptors (the network's last round).
 json BundleSizes(const fs::path& bundle) {
   const std::vector<std::string> bookkeeping = {map_blobs::kManifest, map_blobs::kTrainingLog};
   std::vector<std::string> without_descriptors = bookkeeping;
   without_descriptors.push_back(map_blobs::kObservations);
   std::vector<std::string> without_network = bookkeeping;
   without_network.push_back(map_blobs::kNetwork);
+  without_network.push_back(map_blobs::kPointDescriptors);
   return {{"hsc_bytes", DirectoryBytes(bundle, without_descriptors)},
           {"nn_bytes", DirectoryBytes(bundle, without_network)},
           {"network_bytes", fs::file_size(bundle / map_blobs::kNetwork)},

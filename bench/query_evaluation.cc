@@ -1,5 +1,6 @@
 #include "bench/query_evaluation.h"
 
+#include <algorithm>
 #include <map>
 #include <string>
 
@@ -72,7 +73,13 @@ json AccuracyJson(const Evaluation& evaluation) {
 namespace {
 
 std::string QueryClass(const PoseResult& result, int64_t keypoints) {
-  const std::string rounds = result.timings.rounds > 1 ? "votes' round" : "one round";
+  const bool last_resort = std::any_of(result.candidates.begin(), result.candidates.end(),
+                                       [](const LocalizationCandidate& candidate) {
+                                         return candidate.source == CandidateSource::kNearestPoints;
+                                       });
+  const std::string rounds = last_resort                 ? "points' last round"
+                             : result.timings.rounds > 1 ? "votes' round"
+                                                         : "one round";
   const std::string size = keypoints < 1000   ? "< 1000 keypoints"
                            : keypoints < 3000 ? "1000-2999 keypoints"
                                               : ">= 3000 keypoints";

@@ -57,10 +57,12 @@ std::vector<AblationVariant> StandardAblationVariants() {
   // The paper's pipeline retrieves with the global descriptor alone and keeps the winning image's
   // pose; each of the first five variants switches one thing of it, the sixth adds the votes'
   // round, the last is hscloc's default (with the deeper global round where the votes are weak
-  // too, and RANSAC sampling the network's most confident matches first).
+  // too, RANSAC sampling the network's most confident matches first, and the points' mean
+  // descriptors where the network finds no pose).
   for (size_t i = 0; i < 6; ++i) {
     variants[i].options.final_pose = FinalPose::kWinner;
     variants[i].options.sample_by_confidence = false;
+    variants[i].options.nearest_point_candidates = 0;
   }
   for (size_t i = 0; i < 5; ++i) variants[i].options.retrieval = RetrievalMode::kGlobal;
   variants[0].name = "top-10, visibility filter (paper)";

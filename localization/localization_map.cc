@@ -59,6 +59,7 @@ std::shared_ptr<const LocalizationMap> LocalizationMap::Load(
       map_blobs::kVlad,  map_blobs::kGlobalDescriptors, map_blobs::kGlobalIndex};
   if (options.load_observations) blobs.push_back(map_blobs::kObservations);
   if (options.load_network) blobs.push_back(map_blobs::kNetwork);
+  if (options.load_point_descriptors) blobs.push_back(map_blobs::kPointDescriptors);
   MapBundle bundle = MapBundle::Open(bundle_dir, blobs);
   auto map = std::make_shared<LocalizationMap>();
   map->dir_ = bundle_dir;
@@ -74,6 +75,10 @@ std::shared_ptr<const LocalizationMap> LocalizationMap::Load(
   }
   map->label_tree_ = ReadBlob(bundle, map_blobs::kLabelTree, LabelTree::Read);
   map->visibility_ = ReadBlob(bundle, map_blobs::kVisibility, Visibility::Read);
+  if (options.load_point_descriptors && bundle.HasBlob(map_blobs::kPointDescriptors)) {
+    map->point_descriptors_ =
+        ReadBlob(bundle, map_blobs::kPointDescriptors, PointDescriptors::Read);
+  }
   if (bundle.HasBlob(map_blobs::kVlad)) {
     map->vlad_ = ReadBlob(bundle, map_blobs::kVlad, VladEncoder::Read);
   }
@@ -96,6 +101,13 @@ std::shared_ptr<const LocalizationMap> LocalizationMap::Load(
   if (map->visibility_.NumImages() != scene.NumImages() ||
       map->visibility_.NumPoints() != scene.NumPoints()) {
     fail("visibility lists do not match the scene's images and points");
+  }
+  if (!map->point_descriptors_.empty() &&
+      (map->point_descriptors_.NumPoints() != scene.NumPoints() ||
+       map->point_descriptors_.Dimension() != map->descriptor_dim_)) {
+    fail(fmt::format("{} point descriptors of dimension {}, scene of {} points of dimension {}",
+                     map->point_descriptors_.NumPoints(), map->point_descriptors_.Dimension(),
+                     scene.NumPoints(), map->descriptor_dim_));
   }
   if (map->global_index_.size() != scene.NumImages() ||
       static_cast<size_t>(map->global_descriptors_.rows()) != scene.NumImages()) {

@@ -2,8 +2,9 @@
 // retrieval index, loaded read-only from a verified map bundle (`hscloc build-map`).
 //
 // Bundle blobs (docs/formats.md): scene.bin, observations.bin, label_tree.bin, visibility.bin,
-// global_descriptors.bin, global_index.bin, and vlad.bin when the global descriptors are computed
-// from local features (absent when they came from an external .h5).
+// point_descriptors.bin (absent from maps built before it), global_descriptors.bin,
+// global_index.bin, and vlad.bin when the global descriptors are computed from local features
+// (absent when they came from an external .h5).
 #pragma once
 
 #include <filesystem>
@@ -14,6 +15,7 @@
 
 #include "map/label_tree.h"
 #include "map/map_blobs.h"
+#include "map/point_descriptors.h"
 #include "map/visibility.h"
 #include "model/network.h"
 #include "retrieval/global_index.h"
@@ -32,6 +34,9 @@ struct LocalizationMapLoadOptions {
   // The trained network, when the bundle has one, read from the same verified opening of the
   // bundle as the other parts (so map and network always come from one version of it).
   bool load_network = true;
+  // Each point's mean descriptor, when the bundle has it: what the localizer matches against
+  // where the network leaves a query without a pose (256 bytes a point at D = 256).
+  bool load_point_descriptors = true;
   ComputeDevice device = ComputeDevice::kCpu;
 };
 
@@ -49,6 +54,8 @@ class LocalizationMap {
   const Scene& scene() const { return scene_; }
   const LabelTree& label_tree() const { return label_tree_; }
   const Visibility& visibility() const { return visibility_; }
+  // Empty when the bundle has none or they were not asked for.
+  const PointDescriptors& point_descriptors() const { return point_descriptors_; }
   // Absent when the map's global descriptors came from an external file: queries must then send
   // their own global descriptor.
   const std::optional<VladEncoder>& vlad() const { return vlad_; }
@@ -65,6 +72,7 @@ class LocalizationMap {
   Scene scene_;
   LabelTree label_tree_;
   Visibility visibility_;
+  PointDescriptors point_descriptors_;
   std::optional<VladEncoder> vlad_;
   GlobalIndex global_index_;
   GlobalDescriptorMatrix global_descriptors_;

@@ -88,6 +88,8 @@ Localizer Localizer::FromBundle(const std::filesystem::path& bundle_dir,
       bundle_dir,
       {.load_observations = matcher == Matcher::kNearestNeighbor,
        .load_network = matcher == Matcher::kNetwork || options.retrieval != RetrievalMode::kGlobal,
+       .load_point_descriptors =
+           matcher == Matcher::kNetwork && options.nearest_point_candidates > 0,
        .device = device});
   std::shared_ptr<const Network> network = map->network();
   return Localizer(std::move(map), std::move(network), options);
@@ -241,6 +243,13 @@ std::vector<CandidateMatches> Localizer::Match(const LocalizationQuery& query,
                                                const LocalizerOptions& options,
                                                DescriptorLayerCache& network_cache) const {
   std::vector<CandidateMatches> matches(end - begin);
+  if (begin < end && candidates[begin].source == CandidateSource::kNearestPoints) {
+    const DescriptorMatrix unit_query = UnitRows(query.descriptors);
+    for (size_t k = begin; k < end; ++k) {
+      matches[k - begin] = MatchNearestPoints(unit_query, candidates[k].image_index, options);
+    }
+    return matches;
+  }
   if (options.matcher == Matcher::kNearestNeighbor) {
     const DescriptorMatrix unit_query = UnitRows(query.descriptors);
     for (size_t k = begin; k < end; ++k) {
@@ -486,6 +495,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
       RefineRoundWinner(query, options, 0, evaluation);
     }
   }
+  if (!votes_only) EvaluateNearestPointRound(query, options, global_descriptor, evaluation);
 
   result.best_candidate = Choose(result.candidates);
   if (result.best_candidate < 0) {

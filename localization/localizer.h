@@ -5,7 +5,11 @@
 //                  when none of them yields a pose (RetrievalMode::kGlobalThenVotes), a second
 //                  round: the network's predictions without an image id vote for the images
 //                  that observe the predicted points, and their top-K not yet tried follow;
-//                  where that round is weak too, the global ranking's next candidates
+//                  where that round is weak too, the global ranking's next candidates; where
+//                  no round yields a pose, the network's last resort: the global ranking's
+//                  first images ranked by their nearest-neighbour matches to the mean
+//                  descriptors of the points they see (map/point_descriptors.h), the top-K so
+//                  matched and posed
 //   Match          the hierarchical classification network predicts, for each keypoint and each
 //                  candidate, the 3D point it sees (the descriptor-only layers once, the K image
 //                  ids as one batch); or, as the explicit-matching baseline, mutual nearest
@@ -110,6 +114,14 @@ struct LocalizerOptions {
   // this many, are one more round: a night query's right image often ranks just past the first
   // top_k (hloc retrieves 50 for Aachen's night). 0: none.
   int deeper_global_candidates = 20;
+  // The network's last resort: where every round leaves the query without a pose, the global
+  // ranking's first this many images are matched by mutual nearest neighbours with the ratio test
+  // (nearest_neighbor) against the mean descriptors of the points each image sees
+  // (map/point_descriptors.h), and the top_k with the most matches are posed as one more round. A
+  // night descriptor the network cannot label still lies nearest its own point's mean, and hloc
+  // retrieves 50 images for Aachen's night where this map's right image can rank past 100
+  // (docs/decisions.md). Needs a map with point descriptors and global retrieval; 0: never.
+  int nearest_point_candidates = 200;
   // The votes' pass without an image id scores every point of the map at its first level; on a
   // map of at least PointRowIndex::kMinPoints points it probes the point row index instead
   // (model/point_row_index.h), unless this asks for the exact pass.
@@ -164,6 +176,9 @@ struct LocalizationQuery {
 enum class CandidateSource {
   kGlobalDescriptor,
   kPointVotes,
+  // Ranked by their matches to the points' mean descriptors, and matched so
+  // (LocalizerOptions::nearest_point_candidates); such an image may also be an earlier candidate.
+  kNearestPoints,
 };
 
 // One retrieved database image and the pose estimated against it.
@@ -254,6 +269,20 @@ class Localizer {
                              Evaluation& evaluation) const;
   // Whether the query's retrieval has a votes round: always, after a weak first one, or never.
   bool UsesVotes(const LocalizerOptions& options) const;
+  // The last round (LocalizerOptions::nearest_point_candidates), when no candidate so far has a
+  // pose: the global ranking's first images matched against their points' mean descriptors, the
+  // top_k with the most matches posed.
+  void EvaluateNearestPointRound(const LocalizationQuery& query, const LocalizerOptions& options,
+                                 const Eigen::VectorXf& global_descriptor,
+                                 Evaluation& evaluation) const;
+  bool UsesNearestPoints(const LocalizerOptions& options) const;
+  std::vector<LocalizationCandidate> RetrieveByNearestPoints(
+      const LocalizationQuery& query, const LocalizerOptions& options,
+      const Eigen::VectorXf& global_descriptor) const;
+  // Mutual nearest neighbours with the ratio test between unit query rows and the mean
+  // descriptors of the points image `image_index` sees.
+  CandidateMatches MatchNearestPoints(const DescriptorMatrix& unit_query, uint32_t image_index,
+                                      const LocalizerOptions& options) const;
   // The matches of candidates [begin, end), one entry each.
   std::vector<CandidateMatches> Match(const LocalizationQuery& query,
                                       const std::vector<LocalizationCandidate>& candidates,

@@ -75,6 +75,9 @@ void LocalizerOptions::Check() const {
   THROW_CHECK_MSG(deeper_global_candidates >= 0,
                   "LocalizerOptions.deeper_global_candidates = {} (0: none)",
                   deeper_global_candidates);
+  THROW_CHECK_MSG(nearest_point_candidates >= 0,
+                  "LocalizerOptions.nearest_point_candidates = {} (0: never)",
+                  nearest_point_candidates);
   THROW_CHECK_MSG(first_look_samples >= 0, "LocalizerOptions.first_look_samples = {} (0: none)",
                   first_look_samples);
   nearest_neighbor.Check();

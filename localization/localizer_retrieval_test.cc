@@ -54,6 +54,7 @@ TEST_F(SmallCityLocalizerTest, PointVotesRecoverQueriesThatRetrievalSendsAstray)
   const QuerySet& set = Set("day");
   LocalizerOptions global_only;
   global_only.retrieval = RetrievalMode::kGlobal;
+  global_only.nearest_point_candidates = 0;
   int recovered = 0;
   int astray_within = 0;
   const size_t count = std::min<size_t>(set.queries.size(), 8);
@@ -431,6 +432,56 @@ TEST_F(SmallCityLocalizerTest, TheGlobalRankingsNextImagesFollowWhereEveryEarlie
     recovered += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], deeper);
   }
   EXPECT_GE(recovered, 3) << "the blend must mislead the first round for the test to mean anything";
+}
+
+// Where the network places nothing (here an untrained one, whose labels are random), the last
+// round matches the global ranking's images against the mean descriptors of the points they see,
+// and poses the top_k with the most matches.
+TEST_F(SmallCityLocalizerTest, PointDescriptorsPlaceQueriesTheNetworkCannot) {
+  const auto map = LocalizationMap::Load(localizer().map().dir());
+  ASSERT_FALSE(map->point_descriptors().empty()) << "the map builder writes them";
+  ASSERT_EQ(map->point_descriptors().NumPoints(), map->scene().NumPoints());
+  const auto untrained = std::make_shared<const Network>(
+      NetworkShape::ForTree(map->descriptor_dim(), map->label_tree(),
+                            static_cast<int>(map->scene().NumImages())),
+      NetworkOptions(), /*seed=*/7);
+  const Localizer localizer(map, untrained);
+  const LocalizerOptions options;
+  LocalizerOptions without = options;
+  without.nearest_point_candidates = 0;
+  const QuerySet& set = Set("day");
+  const size_t count = std::min<size_t>(set.queries.size(), 6);
+  int placed = 0;
+  for (size_t q = 0; q < count; ++q) {
+    SCOPED_TRACE(set.queries[q].name);
+    const PoseResult network_alone = localizer.Localize(set.queries[q], without);
+    EXPECT_FALSE(WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], network_alone))
+        << "an untrained network must not place the query for the test to mean anything";
+    if (network_alone.success) continue;  // the last round runs only without any pose
+    const PoseResult result = localizer.Localize(set.queries[q], options);
+    const size_t earlier = network_alone.candidates.size();
+    ASSERT_GT(result.candidates.size(), earlier);
+    EXPECT_LE(result.candidates.size(), earlier + options.top_k);
+    std::set<uint32_t> last_round_images;
+    for (size_t k = 0; k < result.candidates.size(); ++k) {
+      const LocalizationCandidate& candidate = result.candidates[k];
+      EXPECT_EQ(candidate.source == CandidateSource::kNearestPoints, k >= earlier) << k;
+      if (k < earlier) {
+        EXPECT_EQ(candidate.image_index, network_alone.candidates[k].image_index) << k;
+        continue;
+      }
+      // Ranked by their matches, and only those with enough of them to be posed.
+      EXPECT_TRUE(candidate.evaluated) << k;
+      EXPECT_GE(candidate.num_matches, options.pose.min_inliers) << k;
+      if (k > earlier) EXPECT_LE(candidate.num_matches, result.candidates[k - 1].num_matches) << k;
+      last_round_images.insert(candidate.image_index);
+    }
+    EXPECT_EQ(last_round_images.size(), result.candidates.size() - earlier);
+    ASSERT_TRUE(result.success) << result.failure_reason;
+    EXPECT_EQ(result.candidates[result.best_candidate].source, CandidateSource::kNearestPoints);
+    placed += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], result);
+  }
+  EXPECT_GE(placed, static_cast<int>(count) - 1);
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include "localization/localization_map.h"
 #include "map/map_blobs.h"
 #include "map/map_bundle.h"
+#include "map/point_descriptors.h"
 #include "map/visibility.h"
 #include "scene/colmap_io.h"
 #include "scene/scene.h"
@@ -194,22 +195,31 @@ MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& op
                   reconstruction.points3D.size());
   const std::unique_ptr<FeatureReader> features = OpenFeatureReader(inputs.features);
   // The join streams: each image's observed descriptors go to the observations blob as they are
-  // read, so the map's descriptors (4.7 GB for the aachen preset in floats) are never held.
+  // read, so the map's descriptors (4.7 GB for the aachen preset in floats) are never held; only
+  // each point's sum of them is (1.5 GB there), for the points' descriptors.
   const Scene scene = Scene::FromReconstruction(reconstruction, ObservationIndices(reconstruction));
   MapBundleWriter writer(bundle_dir);
   int64_t descriptor_dim = 0;
+  PointDescriptorAccumulator point_sums(scene.NumPoints());
   writer.AddBlob(map_blobs::kObservations, [&](std::ostream& s) {
     std::optional<SceneObservationsWriter> blob;
-    descriptor_dim =
-        ForEachJoinedImage(reconstruction, *features, options.join,
-                           [&](const Image&, const ImageFeatures& image_features,
-                               const std::vector<point2D_t>& keypoint_rows) {
-                             if (!blob) blob.emplace(s, scene, image_features.Dimension());
-                             blob->Append(image_features.descriptors(keypoint_rows, Eigen::all));
-                           });
+    size_t joined_rows = 0;
+    descriptor_dim = ForEachJoinedImage(
+        reconstruction, *features, options.join,
+        [&](const Image&, const ImageFeatures& image_features,
+            const std::vector<point2D_t>& keypoint_rows) {
+          if (!blob) blob.emplace(s, scene, image_features.Dimension());
+          const DescriptorMatrix rows = image_features.descriptors(keypoint_rows, Eigen::all);
+          blob->Append(rows);
+          // Observations come in the scene's order (ObservationIndices).
+          point_sums.Add(rows, scene.observation_point_indices.data() + joined_rows);
+          joined_rows += keypoint_rows.size();
+        });
     if (!blob) blob.emplace(s, scene, 0);
     blob->Finish();
   });
+  writer.AddBlob(map_blobs::kPointDescriptors,
+                 [&](std::ostream& s) { point_sums.Finish().Write(s); });
   // Its 2D points are most of what it holds, and the scene has kept the rest.
   reconstruction = Reconstruction();
   summary.seconds_join = stage.ElapsedSeconds();

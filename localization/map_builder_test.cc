@@ -1,11 +1,14 @@
 #include "localization/map_builder.h"
 
+#include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <fstream>
 
 #include "localization/localization_map.h"
+#include "map/map_bundle.h"
+#include "map/point_descriptors.h"
 #include "scene/colmap_io.h"
 #include "scene/feature_io.h"
 #include "synthetic/synthetic_city.h"
@@ -83,6 +86,20 @@ TEST_F(MapBuilderTest, BuildsALoadableConsistentMap) {
     ASSERT_TRUE(map->visibility().IsVisible(scene.observation_image_indices[o],
                                             scene.observation_point_indices[o]));
   }
+  // Each point's descriptor is the unit mean of its observations' unit descriptors.
+  const PointDescriptors& point_descriptors = map->point_descriptors();
+  ASSERT_EQ(point_descriptors.NumPoints(), scene.NumPoints());
+  DescriptorMatrix means = DescriptorMatrix::Zero(scene.NumPoints(), scene.Dimension());
+  for (size_t o = 0; o < scene.NumObservations(); ++o) {
+    means.row(scene.observation_point_indices[o]) +=
+        scene.observation_descriptors.row(static_cast<Eigen::Index>(o)).normalized();
+  }
+  std::vector<uint32_t> points(scene.NumPoints());
+  for (uint32_t p = 0; p < scene.NumPoints(); ++p) points[p] = p;
+  const DescriptorMatrix rows = point_descriptors.UnitRows(points.data(), points.size());
+  for (uint32_t p = 0; p < scene.NumPoints(); ++p) {
+    ASSERT_GT(rows.row(p).dot(means.row(p).normalized()), 0.999f) << "point " << p;
+  }
   // The stored global descriptors are the VLAD of each image: an image retrieves itself first.
   const auto features = OpenFeatureReader(CityDir() / "features.h5");
   for (uint32_t i = 0; i < scene.NumImages(); i += 17) {
@@ -111,6 +128,26 @@ TEST_F(MapBuilderTest, CorruptOrMissingPartsAreNamed) {
   } catch (const std::invalid_argument& error) {
     EXPECT_THAT(error.what(), HasSubstr("visibility.bin"));
   }
+}
+
+TEST_F(MapBuilderTest, PointDescriptorsOfAnotherMapAreRejected) {
+  BuildMap(CityInputs(), QuietOptions(), temp_ / "map");
+  const size_t num_points = LocalizationMap::Load(temp_ / "map")->scene().NumPoints();
+  {
+    PointDescriptorAccumulator fewer(num_points - 1);
+    const uint32_t point = 0;
+    fewer.Add(DescriptorMatrix::Ones(1, 64), &point);
+    const PointDescriptors other = fewer.Finish();
+    MapBundleWriter writer = MapBundleWriter::Update(temp_ / "map");
+    writer.AddBlob(map_blobs::kPointDescriptors, [&](std::ostream& s) { other.Write(s); });
+    writer.Commit();
+  }
+  EXPECT_THAT(testing::InvalidArgumentMessage([&] { LocalizationMap::Load(temp_ / "map"); }),
+              HasSubstr(fmt::format("{} point descriptors of dimension 64, scene of {} points",
+                                    num_points - 1, num_points)));
+  // A map loaded without them serves as before.
+  const auto map = LocalizationMap::Load(temp_ / "map", {.load_point_descriptors = false});
+  EXPECT_TRUE(map->point_descriptors().empty());
 }
 
 TEST_F(MapBuilderTest, AFailedBuildKeepsTheOldMap) {

@@ -198,6 +198,9 @@ QueryListRunSummary RunQueryList(const Localizer& localizer,
             std::any_of(result.candidates.begin(), result.candidates.end(), voted);
         summary.num_won_by_votes +=
             result.success && voted(result.candidates[result.best_candidate]);
+        summary.num_won_by_nearest_points +=
+            result.success &&
+            result.candidates[result.best_candidate].source == CandidateSource::kNearestPoints;
         progress.SetStatus(
             fmt::format("{} localized, {} failed", summary.num_localized, summary.num_failed));
         progress.Advance();

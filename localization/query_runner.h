@@ -54,6 +54,9 @@ struct QueryListRunSummary {
   size_t num_failed = 0;        // still written (the top-1 retrieved image's pose), and listed
   size_t num_with_votes = 0;    // queries that had a round of retrieval by point votes
   size_t num_won_by_votes = 0;  // localized queries whose winning candidate came from the votes
+  // Localized queries whose winning candidate came from the points' mean descriptors (the
+  // network's last resort, LocalizerOptions::nearest_point_candidates).
+  size_t num_won_by_nearest_points = 0;
   std::filesystem::path failures_path;
   int num_threads = 0;
   double seconds = 0;

@@ -11,6 +11,8 @@ inline constexpr char kScene[] = "scene.bin";         // cameras, images, points
 inline constexpr char kObservations[] = "observations.bin";
 inline constexpr char kLabelTree[] = "label_tree.bin";
 inline constexpr char kVisibility[] = "visibility.bin";
+// Each point's unit mean descriptor at 8 bits (map/point_descriptors.h); absent from older maps.
+inline constexpr char kPointDescriptors[] = "point_descriptors.bin";
 inline constexpr char kVlad[] = "vlad.bin";  // absent when the global descriptors are external
 inline constexpr char kGlobalDescriptors[] = "global_descriptors.bin";
 inline constexpr char kGlobalIndex[] = "global_index.bin";

@@ -22,6 +22,18 @@ void ToWire(const Rigid3d& cam_from_world, wire::Pose* pose) {
 // at compile time), so the bytes are copied as they are.
 static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "the wire format is little-endian");
 
+wire::CandidateSource WireSource(CandidateSource source) {
+  switch (source) {
+    case CandidateSource::kGlobalDescriptor:
+      return wire::GLOBAL_DESCRIPTOR;
+    case CandidateSource::kPointVotes:
+      return wire::POINT_VOTES;
+    case CandidateSource::kNearestPoints:
+      return wire::NEAREST_POINTS;
+  }
+  ThrowInvalidArgument("unknown candidate source {}", static_cast<int>(source));
+}
+
 }  // namespace
 
 LocalizationQuery QueryFromWire(const wire::LocalizeRequest& request, const WireLimits& limits) {
@@ -162,8 +174,7 @@ void PoseResultToWire(const PoseResult& result, const Scene& scene,
     out->set_num_matches(static_cast<uint32_t>(candidate.num_matches));
     out->set_num_inliers(static_cast<uint32_t>(candidate.num_inliers));
     out->set_evaluated(candidate.evaluated);
-    out->set_source(candidate.source == CandidateSource::kPointVotes ? wire::POINT_VOTES
-                                                                     : wire::GLOBAL_DESCRIPTOR);
+    out->set_source(WireSource(candidate.source));
   }
   wire::StageTimings* timings = response->mutable_timings();
   timings->set_retrieval_ms(result.timings.retrieval_ms);

@@ -116,25 +116,27 @@ TEST(WireTest, EveryInconsistentFieldIsNamed) {
 
 TEST(WireTest, CandidatesCarryTheirRetrievalSource) {
   Scene scene;
-  for (const char* name : {"a.jpg", "b.jpg"}) {
+  for (const char* name : {"a.jpg", "b.jpg", "c.jpg"}) {
     SceneImage image;
     image.image_id = static_cast<image_t>(scene.images.size() + 1);
     image.name = name;
     scene.images.push_back(image);
   }
   PoseResult result;
-  result.candidates.resize(2);
-  result.candidates[0].image_index = 0;
-  result.candidates[0].image_id = 1;
-  result.candidates[1].image_index = 1;
-  result.candidates[1].image_id = 2;
+  result.candidates.resize(3);
+  for (uint32_t k = 0; k < 3; ++k) {
+    result.candidates[k].image_index = k;
+    result.candidates[k].image_id = k + 1;
+  }
   result.candidates[1].source = CandidateSource::kPointVotes;
+  result.candidates[2].source = CandidateSource::kNearestPoints;
   result.candidates[1].retrieval_score = 7.5f;
   wire::LocalizeResponse response;
   PoseResultToWire(result, scene, &response);
-  ASSERT_EQ(response.candidates_size(), 2);
+  ASSERT_EQ(response.candidates_size(), 3);
   EXPECT_EQ(response.candidates(0).source(), wire::GLOBAL_DESCRIPTOR);
   EXPECT_EQ(response.candidates(1).source(), wire::POINT_VOTES);
+  EXPECT_EQ(response.candidates(2).source(), wire::NEAREST_POINTS);
   EXPECT_EQ(response.candidates(1).image_name(), "b.jpg");
   EXPECT_FLOAT_EQ(response.candidates(1).retrieval_score(), 7.5f);
 }

@@ -76,13 +76,14 @@ int RunLocalize(LocalizeArguments& arguments) {
   std::cout << fmt::format(
       "localized {} of {} queries ({} failed, listed in {}) in {}, {} threads, matcher {}\n"
       "{}"
-      "retrieval {}: {} queries had a round of point votes, {} were localized by it\n"
+      "retrieval {}: {} queries had a round of point votes, {} were localized by it; {} were "
+      "localized by the points' mean descriptors\n"
       "submission: {}\n",
       summary.num_localized, summary.num_queries - summary.num_skipped, summary.num_failed,
       summary.failures_path.string(), FormatDuration(summary.seconds), summary.num_threads,
       MatcherName(localizer.ResolvedMatcher(options.matcher)), FormatStageTable(summary.timings),
       RetrievalModeName(localizer.options().retrieval), summary.num_with_votes,
-      summary.num_won_by_votes, arguments.run.out.string());
+      summary.num_won_by_votes, summary.num_won_by_nearest_points, arguments.run.out.string());
   if (!arguments.run.timings_out.empty()) {
     std::cout << fmt::format("timings per query: {}\n", arguments.run.timings_out.string());
   }
@@ -141,6 +142,13 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->add_option("--deeper-global-candidates", options.deeper_global_candidates,
                    "global-then-votes: the global ranking's next images, not yet tried, posed "
                    "where the votes' round is weak too (0: none)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  command
+      ->add_option("--nearest-point-candidates", options.nearest_point_candidates,
+                   "hsc: where no round found a pose, the global ranking's first images matched "
+                   "by nearest neighbour against their points' mean descriptors, the --top-k with "
+                   "the most matches posed (needs a map built with point descriptors; 0: never)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   command->add_flag("--exact-votes", options.exact_votes,

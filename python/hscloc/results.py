@@ -81,7 +81,9 @@ class Candidate:
     num_matches: int
     num_inliers: int
     evaluated: bool
-    source: str  # "GLOBAL_DESCRIPTOR" (VLAD) or "POINT_VOTES" (the network's votes)
+    # "GLOBAL_DESCRIPTOR" (VLAD), "POINT_VOTES" (the network's votes) or "NEAREST_POINTS" (matched
+    # to the points' mean descriptors where the network found no pose)
+    source: str
 
     @classmethod
     def from_wire(cls, candidate: pb.Candidate) -> "Candidate":

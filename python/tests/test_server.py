@@ -95,7 +95,7 @@ def test_a_result_holds_pose_inliers_candidates_and_timings(server: str, city: C
     # The global descriptor's candidates come first; the network's votes follow only after them.
     sources = [c.source for c in result.candidates]
     assert sources[0] == "GLOBAL_DESCRIPTOR"
-    assert sources == sorted(sources, key=["GLOBAL_DESCRIPTOR", "POINT_VOTES"].index)
+    assert sources == sorted(sources, key=["GLOBAL_DESCRIPTOR", "POINT_VOTES", "NEAREST_POINTS"].index)
     timings = result.timings
     assert min(timings.retrieval_ms, timings.match_ms, timings.pose_ms) > 0
     assert timings.server_ms >= timings.total_ms > 0

@@ -1,0 +1,83 @@
+// The localizer's last round (LocalizerOptions::nearest_point_candidates): where the network has
+// left a query without a pose, the global ranking's first images matched against the mean
+// descriptors of the points they see (map/point_descriptors.h).
+#include <algorithm>
+
+#include "localization/localizer.h"
+#include "localization/localizer_evaluation.h"
+#include "util/parallel.h"
+#include "util/timer.h"
+
+namespace hscloc {
+
+bool Localizer::UsesNearestPoints(const LocalizerOptions& options) const {
+  return options.matcher == Matcher::kNetwork && options.retrieval != RetrievalMode::kVotes &&
+         options.nearest_point_candidates > 0 && !map_->point_descriptors().empty();
+}
+
+CandidateMatches Localizer::MatchNearestPoints(const DescriptorMatrix& unit_query,
+                                               uint32_t image_index,
+                                               const LocalizerOptions& options) const {
+  const Visibility& visibility = map_->visibility();
+  const uint32_t* points = visibility.PointsBegin(image_index);
+  const size_t count = visibility.NumPointsOfImage(image_index);
+  const DescriptorMatrix rows = map_->point_descriptors().UnitRows(points, count);
+  return MatchNearestRows(unit_query, rows, points, options.nearest_neighbor);
+}
+
+std::vector<LocalizationCandidate> Localizer::RetrieveByNearestPoints(
+    const LocalizationQuery& query, const LocalizerOptions& options,
+    const Eigen::VectorXf& global_descriptor) const {
+  // Earlier rounds' images are ranked again: the network may have missed its right image.
+  std::vector<LocalizationCandidate> ranked =
+      Retrieve(global_descriptor, options.nearest_point_candidates, {});
+  const DescriptorMatrix unit_query = UnitRows(query.descriptors);
+  ParallelFor(ranked.size(), ComputeThreads(), [&](size_t first, size_t last) {
+    for (size_t k = first; k < last; ++k) {
+      ranked[k].num_matches =
+          static_cast<int>(MatchNearestPoints(unit_query, ranked[k].image_index, options).size());
+    }
+  });
+  std::stable_sort(ranked.begin(), ranked.end(),
+                   [](const LocalizationCandidate& a, const LocalizationCandidate& b) {
+                     return a.num_matches > b.num_matches;
+                   });
+  std::vector<LocalizationCandidate> candidates;
+  for (LocalizationCandidate& candidate : ranked) {
+    if (static_cast<int>(candidates.size()) == options.top_k ||
+        candidate.num_matches < options.pose.min_inliers) {
+      break;
+    }
+    candidate.source = CandidateSource::kNearestPoints;
+    candidate.num_matches = 0;  // counted again when the round matches it
+    candidates.push_back(candidate);
+  }
+  return candidates;
+}
+
+void Localizer::EvaluateNearestPointRound(const LocalizationQuery& query,
+                                          const LocalizerOptions& options,
+                                          const Eigen::VectorXf& global_descriptor,
+                                          Evaluation& evaluation) const {
+  PoseResult& result = evaluation.result;
+  if (!UsesNearestPoints(options) || global_descriptor.size() == 0 ||
+      Choose(result.candidates) >= 0) {
+    return;
+  }
+  const size_t first = result.candidates.size();
+  {
+    ScopedTimer timer(&result.timings.retrieval_ms);
+    std::vector<LocalizationCandidate> ranked =
+        RetrieveByNearestPoints(query, options, global_descriptor);
+    result.candidates.insert(result.candidates.end(), ranked.begin(), ranked.end());
+  }
+  if (result.candidates.size() == first) return;
+  EvaluateRound(query, options, first, evaluation);
+  ScopedTimer timer(&result.timings.pose_ms);
+  if (CompleteFirstLooks(query, options, evaluation)) {
+    ScopedTimer refine_timer(&result.timings.refine_ms);
+    RefineRoundWinner(query, options, 0, evaluation);
+  }
+}
+
+}  // namespace hscloc
