@@ -20,11 +20,10 @@ CandidateMatches UniteMatches(const std::vector<const CandidateMatches*>& parts)
     THROW_CHECK_MSG(part->point_indices.size() == part->size(),
                     "UniteMatches: a part has {} keypoints but {} points", part->size(),
                     part->point_indices.size());
-    const size_t expected_confidences = confident ? part->size() : 0;
-    THROW_CHECK_MSG(part->confidences.size() == expected_confidences,
-                    "UniteMatches: a part of {} matches has {} confidences ({} expected: all parts "
-                    "have confidences or none)",
-                    part->size(), part->confidences.size(), expected_confidences);
+    THROW_CHECK_MSG(
+        part->confidences.empty() || part->confidences.size() == part->size(),
+        "UniteMatches: a part of {} matches has {} confidences (one per match, or none)",
+        part->size(), part->confidences.size());
     total += part->size();
   }
 
@@ -41,7 +40,9 @@ CandidateMatches UniteMatches(const std::vector<const CandidateMatches*>& parts)
                       part->keypoints[i]);
       const auto key = static_cast<int64_t>(part->keypoints[i]) << 32 | part->point_indices[i];
       by_pair.emplace_back(key, static_cast<int64_t>(by_pair.size()));
-      if (confident) confidences.push_back(part->confidences[i]);
+      // Nearest-neighbour matches (the localizer's last round) carry no confidence: beside the
+      // network's, each counts as the least confident.
+      if (confident) confidences.push_back(part->confidences.empty() ? 0.0f : part->confidences[i]);
     }
   }
   std::vector<std::pair<int64_t, int64_t>> scratch;

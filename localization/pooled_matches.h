@@ -14,9 +14,10 @@
 namespace hscloc {
 
 // The union of `parts`: each (keypoint, point) pair once, ordered by keypoint then point. Where
-// the parts carry confidences (all or none of them must), a pair keeps its highest; throws
-// std::invalid_argument when some parts have confidences and others do not, or a part's
-// confidences do not match its size.
+// some parts carry confidences, a pair keeps its highest, a match of a part without them
+// counting at 0 (nearest-neighbour matches pooled with the network's); where none does, the union
+// has none. Throws std::invalid_argument when a part's confidences are neither one per match nor
+// none.
 CandidateMatches UniteMatches(const std::vector<const CandidateMatches*>& parts);
 
 }  // namespace hscloc

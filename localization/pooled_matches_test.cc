@@ -105,10 +105,21 @@ TEST(PooledMatches, RandomConfidentPartsKeepEachPairsHighestConfidence) {
   }
 }
 
-TEST(PooledMatches, MixedOrMalformedPartsThrow) {
-  const CandidateMatches confident{{0}, {1}, {0.5f}};
-  const CandidateMatches plain{{1}, {2}, {}};
-  EXPECT_THROW(UniteMatches({&confident, &plain}), std::invalid_argument);
+TEST(PooledMatches, MatchesWithoutConfidencesCountAtZeroBesideConfidentOnes) {
+  const CandidateMatches confident{{0, 3}, {1, 6}, {0.5f, 0.25f}};
+  const CandidateMatches plain{{1, 0}, {2, 1}, {}};
+  for (const auto& parts : {std::vector<const CandidateMatches*>{&confident, &plain},
+                            std::vector<const CandidateMatches*>{&plain, &confident}}) {
+    const CandidateMatches united = UniteMatches(parts);
+    EXPECT_THAT(united.keypoints, ElementsAre(0, 1, 3));
+    EXPECT_THAT(united.point_indices, ElementsAre(1, 2, 6));
+    EXPECT_THAT(united.confidences, ElementsAre(0.5f, 0.0f, 0.25f));
+  }
+}
+
+TEST(PooledMatches, MalformedPartsThrow) {
+  const CandidateMatches short_confidences{{0, 1}, {1, 2}, {0.5f}};
+  EXPECT_THROW(UniteMatches({&short_confidences}), std::invalid_argument);
   const CandidateMatches short_points{{0, 1}, {1}, {}};
   EXPECT_THROW(UniteMatches({&short_points}), std::invalid_argument);
   EXPECT_THROW(UniteMatches({nullptr}), std::invalid_argument);
