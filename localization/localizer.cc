@@ -243,18 +243,16 @@ std::vector<CandidateMatches> Localizer::Match(const LocalizationQuery& query,
                                                const LocalizerOptions& options,
                                                DescriptorLayerCache& network_cache) const {
   std::vector<CandidateMatches> matches(end - begin);
-  if (begin < end && candidates[begin].source == CandidateSource::kNearestPoints) {
+  // A round's candidates share their source: the last round's match the points' descriptors.
+  const bool nearest_points =
+      begin < end && candidates[begin].source == CandidateSource::kNearestPoints;
+  if (nearest_points || options.matcher == Matcher::kNearestNeighbor) {
     const DescriptorMatrix unit_query = UnitRows(query.descriptors);
     for (size_t k = begin; k < end; ++k) {
-      matches[k - begin] = MatchNearestPoints(unit_query, candidates[k].image_index, options);
-    }
-    return matches;
-  }
-  if (options.matcher == Matcher::kNearestNeighbor) {
-    const DescriptorMatrix unit_query = UnitRows(query.descriptors);
-    for (size_t k = begin; k < end; ++k) {
+      const uint32_t image = candidates[k].image_index;
       matches[k - begin] =
-          nearest_neighbor_->Match(unit_query, candidates[k].image_index, options.nearest_neighbor);
+          nearest_points ? MatchNearestPoints(unit_query, image, options)
+                         : nearest_neighbor_->Match(unit_query, image, options.nearest_neighbor);
     }
     return matches;
   }

@@ -196,7 +196,7 @@ MapBuildSummary BuildMap(const MapBuildInputs& inputs, const MapBuildOptions& op
   const std::unique_ptr<FeatureReader> features = OpenFeatureReader(inputs.features);
   // The join streams: each image's observed descriptors go to the observations blob as they are
   // read, so the map's descriptors (4.7 GB for the aachen preset in floats) are never held; only
-  // each point's sum of them is (1.5 GB there), for the points' descriptors.
+  // each point's sum of them is (1.6 GB there), for the points' descriptors.
   const Scene scene = Scene::FromReconstruction(reconstruction, ObservationIndices(reconstruction));
   MapBundleWriter writer(bundle_dir);
   int64_t descriptor_dim = 0;
