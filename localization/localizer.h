@@ -279,6 +279,11 @@ class Localizer {
   std::vector<LocalizationCandidate> RetrieveByNearestPoints(
       const LocalizationQuery& query, const LocalizerOptions& options,
       const Eigen::VectorXf& global_descriptor) const;
+  // How many matches MatchNearestPoints finds in each of `images`, the union of their points
+  // matched once (CountNearestRowMatches).
+  std::vector<int> CountNearestPointMatches(const LocalizationQuery& query,
+                                            const std::vector<LocalizationCandidate>& images,
+                                            const LocalizerOptions& options) const;
   // Mutual nearest neighbours with the ratio test between unit query rows and the mean
   // descriptors of the points image `image_index` sees.
   CandidateMatches MatchNearestPoints(const DescriptorMatrix& unit_query, uint32_t image_index,

@@ -25,19 +25,43 @@ CandidateMatches Localizer::MatchNearestPoints(const DescriptorMatrix& unit_quer
   return MatchNearestRows(unit_query, rows, points, options.nearest_neighbor);
 }
 
+std::vector<int> Localizer::CountNearestPointMatches(
+    const LocalizationQuery& query, const std::vector<LocalizationCandidate>& images,
+    const LocalizerOptions& options) const {
+  // Images near one another see many of the same points: their union is matched once. The counts
+  // are MatchNearestPoints' but for exact ties of similarity, which go to the point of lower
+  // index here and to the one the image lists first there; they only rank the images.
+  const Visibility& visibility = map_->visibility();
+  std::vector<uint32_t> points;
+  for (const LocalizationCandidate& image : images) {
+    const uint32_t* begin = visibility.PointsBegin(image.image_index);
+    points.insert(points.end(), begin, begin + visibility.NumPointsOfImage(image.image_index));
+  }
+  std::sort(points.begin(), points.end());
+  points.erase(std::unique(points.begin(), points.end()), points.end());
+  std::vector<std::vector<uint32_t>> rows_of_images(images.size());
+  for (size_t k = 0; k < images.size(); ++k) {
+    const uint32_t* begin = visibility.PointsBegin(images[k].image_index);
+    for (const uint32_t* point = begin;
+         point != begin + visibility.NumPointsOfImage(images[k].image_index); ++point) {
+      rows_of_images[k].push_back(static_cast<uint32_t>(
+          std::lower_bound(points.begin(), points.end(), *point) - points.begin()));
+    }
+    std::sort(rows_of_images[k].begin(), rows_of_images[k].end());
+  }
+  const DescriptorMatrix rows = map_->point_descriptors().UnitRows(points.data(), points.size());
+  return CountNearestRowMatches(UnitRows(query.descriptors), rows, rows_of_images,
+                                options.nearest_neighbor, ComputeThreads());
+}
+
 std::vector<LocalizationCandidate> Localizer::RetrieveByNearestPoints(
     const LocalizationQuery& query, const LocalizerOptions& options,
     const Eigen::VectorXf& global_descriptor) const {
   // Earlier rounds' images are ranked again: the network may have missed its right image.
   std::vector<LocalizationCandidate> ranked =
       Retrieve(global_descriptor, options.nearest_point_candidates, {});
-  const DescriptorMatrix unit_query = UnitRows(query.descriptors);
-  ParallelFor(ranked.size(), ComputeThreads(), [&](size_t first, size_t last) {
-    for (size_t k = first; k < last; ++k) {
-      ranked[k].num_matches =
-          static_cast<int>(MatchNearestPoints(unit_query, ranked[k].image_index, options).size());
-    }
-  });
+  const std::vector<int> counts = CountNearestPointMatches(query, ranked, options);
+  for (size_t k = 0; k < ranked.size(); ++k) ranked[k].num_matches = counts[k];
   std::stable_sort(ranked.begin(), ranked.end(),
                    [](const LocalizationCandidate& a, const LocalizationCandidate& b) {
                      return a.num_matches > b.num_matches;

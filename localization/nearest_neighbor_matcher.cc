@@ -7,6 +7,7 @@
 
 #include "model/dense_kernels.h"
 #include "util/check.h"
+#include "util/parallel.h"
 
 namespace hscloc {
 
@@ -46,13 +47,22 @@ NearestNeighborMatcher::NearestNeighborMatcher(const Scene& scene) {
 
 namespace {
 
-// Query rows per block of similarities: a block of about a megabyte stays in cache between the
-// product that writes it and the scans that read it, where the whole matrix (thousands of
-// keypoints by thousands of rows) would go out to memory and back.
-int64_t QueryRowsPerBlock(int64_t rows) {
+// Rows per block of similarities against `columns` others: a block of about a megabyte stays in
+// cache between the product that writes it and the scans that read it, where the whole matrix
+// (thousands of keypoints by thousands of rows) would go out to memory and back.
+int64_t RowsPerBlock(int64_t columns) {
   constexpr int64_t kBlockFloats = int64_t{1} << 18;
   constexpr int64_t kTileRows = 12;
-  return std::max(kTileRows, kBlockFloats / std::max<int64_t>(rows, 1) / kTileRows * kTileRows);
+  return std::max(kTileRows, kBlockFloats / std::max<int64_t>(columns, 1) / kTileRows * kTileRows);
+}
+
+// Lowe's test on the similarities of a query's best row and of the best row of any other point
+// (-infinity: there is none, and the best row passes). For unit vectors, squared distance =
+// 2 - 2 cos.
+bool PassesRatioTest(float best, float second, double squared_ratio) {
+  const auto squared_distance = [](float cosine) { return std::max(0.0f, 2 - 2 * cosine); };
+  return !std::isfinite(second) ||
+         squared_distance(best) < squared_ratio * squared_distance(second);
 }
 
 // The best row of one query row's similarities and the best row of any other point: the row, or
@@ -73,12 +83,7 @@ int64_t BestRowPassingRatio(const float* similarities, int64_t count, const uint
       second = cosine;
     }
   }
-  // For unit vectors, squared distance = 2 - 2 cos.
-  const auto squared_distance = [](float cosine) { return std::max(0.0f, 2 - 2 * cosine); };
-  if (best_row >= 0 && std::isfinite(second) &&
-      squared_distance(best) >= squared_ratio * squared_distance(second)) {
-    return -1;
-  }
+  if (best_row >= 0 && !PassesRatioTest(best, second, squared_ratio)) return -1;
   return best_row;
 }
 
@@ -106,7 +111,7 @@ CandidateMatches MatchNearestRows(const DescriptorMatrix& unit_query,
   const dense_kernels::PackedMatrix packed_rows =
       dense_kernels::PackMatrix(row_data, count, rows.cols());
   const std::vector<float> no_bias(count, 0.0f);
-  const int64_t block_rows = std::min(num_queries, QueryRowsPerBlock(count));
+  const int64_t block_rows = std::min(num_queries, RowsPerBlock(count));
   std::vector<float> block(block_rows * count);
   std::vector<int64_t> best_row_of_query(num_queries, -1);
   // Every row's best query, the first of the largest similarity, as a scan in query order finds it.
@@ -138,6 +143,163 @@ CandidateMatches MatchNearestRows(const DescriptorMatrix& unit_query,
     matches.point_indices.push_back(row_points[best_row]);
   }
   return matches;
+}
+
+namespace {
+
+// The sets that hold each row: sets[first_set[r] .. first_set[r + 1]) for row r.
+struct SetsOfRows {
+  std::vector<int64_t> first_set;
+  std::vector<uint32_t> sets;
+};
+
+SetsOfRows InvertSets(const std::vector<std::vector<uint32_t>>& sets, int64_t num_rows) {
+  SetsOfRows inverse;
+  inverse.first_set.assign(num_rows + 1, 0);
+  for (size_t set = 0; set < sets.size(); ++set) {
+    for (size_t i = 0; i < sets[set].size(); ++i) {
+      const uint32_t row = sets[set][i];
+      THROW_CHECK_MSG(row < num_rows, "CountNearestRowMatches: set {} holds row {} of {}", set, row,
+                      num_rows);
+      THROW_CHECK_MSG(i == 0 || sets[set][i - 1] < row,
+                      "CountNearestRowMatches: set {} is not in increasing order at position {}",
+                      set, i);
+      ++inverse.first_set[row + 1];
+    }
+  }
+  for (int64_t row = 0; row < num_rows; ++row) inverse.first_set[row + 1] += inverse.first_set[row];
+  inverse.sets.resize(inverse.first_set.back());
+  std::vector<int64_t> next(inverse.first_set.begin(), inverse.first_set.end() - 1);
+  for (size_t set = 0; set < sets.size(); ++set) {
+    for (const uint32_t row : sets[set]) inverse.sets[next[row]++] = static_cast<uint32_t>(set);
+  }
+  return inverse;
+}
+
+// What one slice of the queries found against every row: per set and query of the slice
+// ([set][query]), the best and second similarity over the set's rows and the best row; per row,
+// its best query of the slice (a query index of the whole) and that similarity.
+struct QuerySliceScan {
+  int64_t first_query = 0;
+  int64_t num_queries = 0;
+  std::vector<float> best;
+  std::vector<float> second;
+  std::vector<int32_t> best_row;
+  std::vector<float> row_best_similarity;
+  std::vector<int32_t> row_best_query;
+};
+
+// BestRowPassingRatio's scan, one row at a time, over every query of a set: a row above a query's
+// best makes the old best its second, and a tie goes to the earlier row.
+void ScanRowIntoSet(const float* similarities, int64_t num_queries, int32_t row, float* best,
+                    float* second, int32_t* best_row) {
+  for (int64_t query = 0; query < num_queries; ++query) {
+    const float value = similarities[query];
+    const bool above = value > best[query];
+    second[query] = above ? best[query] : std::max(second[query], value);
+    best_row[query] = above ? row : best_row[query];
+    best[query] = above ? value : best[query];
+  }
+}
+
+QuerySliceScan ScanQuerySlice(const DescriptorMatrix& unit_query, int64_t first_query,
+                              int64_t num_queries, const DescriptorMatrix& rows,
+                              const SetsOfRows& inverse, size_t num_sets) {
+  constexpr float kNone = -std::numeric_limits<float>::infinity();
+  const int64_t num_rows = rows.rows();
+  QuerySliceScan scan{first_query,
+                      num_queries,
+                      std::vector<float>(num_sets * num_queries, kNone),
+                      std::vector<float>(num_sets * num_queries, kNone),
+                      std::vector<int32_t>(num_sets * num_queries, -1),
+                      std::vector<float>(num_rows),
+                      std::vector<int32_t>(num_rows)};
+  // The queries are the product's packed side here: a row's similarities to them lie side by side,
+  // as ScanRowIntoSet reads them for every set that holds the row.
+  const dense_kernels::PackedMatrix packed_queries =
+      dense_kernels::PackMatrix(unit_query.row(first_query).data(), num_queries, rows.cols());
+  const std::vector<float> no_bias(num_queries, 0.0f);
+  const int64_t block_rows = std::min(num_rows, RowsPerBlock(num_queries));
+  std::vector<float> block(block_rows * num_queries);
+  for (int64_t first_row = 0; first_row < num_rows; first_row += block_rows) {
+    const int64_t size = std::min(block_rows, num_rows - first_row);
+    dense_kernels::Linear(rows.row(first_row).data(), size, packed_queries, no_bias.data(), false,
+                          block.data());
+    for (int64_t i = 0; i < size; ++i) {
+      const int64_t row = first_row + i;
+      const float* similarities = block.data() + i * num_queries;
+      const float* best_query = std::max_element(similarities, similarities + num_queries);
+      scan.row_best_similarity[row] = *best_query;
+      scan.row_best_query[row] = static_cast<int32_t>(first_query + (best_query - similarities));
+      for (int64_t k = inverse.first_set[row]; k < inverse.first_set[row + 1]; ++k) {
+        const int64_t offset = int64_t{inverse.sets[k]} * num_queries;
+        ScanRowIntoSet(similarities, num_queries, static_cast<int32_t>(row),
+                       scan.best.data() + offset, scan.second.data() + offset,
+                       scan.best_row.data() + offset);
+      }
+    }
+  }
+  return scan;
+}
+
+// Each row's best query over all slices, the first of equals as a scan in query order finds it.
+std::vector<int32_t> BestQueryOfEachRow(const std::vector<QuerySliceScan>& slices) {
+  std::vector<int32_t> best_query = slices.front().row_best_query;
+  std::vector<float> best_similarity = slices.front().row_best_similarity;
+  for (size_t k = 1; k < slices.size(); ++k) {
+    for (size_t row = 0; row < best_query.size(); ++row) {
+      if (slices[k].row_best_similarity[row] > best_similarity[row]) {
+        best_similarity[row] = slices[k].row_best_similarity[row];
+        best_query[row] = slices[k].row_best_query[row];
+      }
+    }
+  }
+  return best_query;
+}
+
+}  // namespace
+
+std::vector<int> CountNearestRowMatches(const DescriptorMatrix& unit_query,
+                                        const DescriptorMatrix& rows,
+                                        const std::vector<std::vector<uint32_t>>& sets,
+                                        const NearestNeighborOptions& options, int num_threads) {
+  // Fewer queries per thread than this would spend more on each slice's pass over the rows than
+  // the threads save.
+  constexpr int64_t kMinQueriesPerSlice = 64;
+  const SetsOfRows inverse = InvertSets(sets, rows.rows());
+  std::vector<int> counts(sets.size(), 0);
+  const int64_t num_queries = unit_query.rows();
+  if (num_queries == 0 || rows.rows() == 0 || sets.empty()) return counts;
+  THROW_CHECK_EQ(unit_query.cols(), rows.cols());
+  const int threads = ResolveNumThreads(num_threads);
+  const int64_t num_slices =
+      std::clamp<int64_t>(num_queries / kMinQueriesPerSlice, 1, std::max(threads, 1));
+  std::vector<QuerySliceScan> slices(num_slices);
+  ParallelFor(num_slices, threads, [&](size_t begin, size_t end) {
+    for (size_t k = begin; k < end; ++k) {
+      const int64_t first = num_queries * static_cast<int64_t>(k) / num_slices;
+      const int64_t last = num_queries * static_cast<int64_t>(k + 1) / num_slices;
+      slices[k] = ScanQuerySlice(unit_query, first, last - first, rows, inverse, sets.size());
+    }
+  });
+  const std::vector<int32_t> best_query_of_row =
+      options.mutual ? BestQueryOfEachRow(slices) : std::vector<int32_t>();
+  const double squared_ratio = options.ratio * options.ratio;
+  for (const QuerySliceScan& slice : slices) {
+    for (size_t set = 0; set < sets.size(); ++set) {
+      const int64_t offset = static_cast<int64_t>(set) * slice.num_queries;
+      for (int64_t i = 0; i < slice.num_queries; ++i) {
+        const int32_t best_row = slice.best_row[offset + i];
+        if (best_row < 0 ||
+            !PassesRatioTest(slice.best[offset + i], slice.second[offset + i], squared_ratio)) {
+          continue;
+        }
+        if (options.mutual && best_query_of_row[best_row] != slice.first_query + i) continue;
+        ++counts[set];
+      }
+    }
+  }
+  return counts;
 }
 
 CandidateMatches NearestNeighborMatcher::Match(const DescriptorMatrix& unit_query,

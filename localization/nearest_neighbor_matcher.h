@@ -47,6 +47,18 @@ CandidateMatches MatchNearestRows(const DescriptorMatrix& unit_query,
                                   const uint32_t* row_points,
                                   const NearestNeighborOptions& options);
 
+// The number of matches MatchNearestRows gives between unit query rows and each of several sets
+// of `rows` that share many of them (the points that neighbouring database images see): each row's
+// similarities to the queries are computed once for every set that holds it, where matching the
+// sets one by one computes them once per set. sets[s] lists indices into `rows` in increasing
+// order, each row standing for its own point; the counts are MatchNearestRows' to the bit (the
+// same products, the same ties). The queries are split over num_threads threads (<= 0: all
+// cores). Throws std::invalid_argument for a row index past `rows` or a set out of order.
+std::vector<int> CountNearestRowMatches(const DescriptorMatrix& unit_query,
+                                        const DescriptorMatrix& rows,
+                                        const std::vector<std::vector<uint32_t>>& sets,
+                                        const NearestNeighborOptions& options, int num_threads);
+
 class NearestNeighborMatcher {
  public:
   // Groups the scene's observation descriptors by image, as unit rows, once; the scene may go

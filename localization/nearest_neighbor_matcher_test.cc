@@ -3,6 +3,10 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <stdexcept>
+#include <vector>
+
 #include "util/random.h"
 
 namespace hscloc {
@@ -103,6 +107,20 @@ TEST(NearestNeighborMatcher, RatioTestComparesOtherPointsNotOtherRowsOfOnePoint)
               ElementsAre(7));
 }
 
+// Unit queries near random rows: a third far from theirs (noise 2), so that the ratio test and
+// the mutual check each reject some.
+DescriptorMatrix NoisyQueriesOf(const DescriptorMatrix& rows, int count, uint64_t seed) {
+  Random random(seed);
+  const DescriptorMatrix noise = RandomUnitRows(count, static_cast<int>(rows.cols()), seed + 1);
+  DescriptorMatrix query(count, rows.cols());
+  for (int q = 0; q < count; ++q) {
+    const float noise_level = q % 3 == 0 ? 2.0f : 0.4f;
+    query.row(q) =
+        rows.row(static_cast<int64_t>(random.UniformInt(rows.rows()))) + noise_level * noise.row(q);
+  }
+  return UnitRows(query);
+}
+
 // The definition in double precision: each query's best row, kept where the best row of every
 // other point is far enough behind and, with `mutual`, where no earlier query is as similar to that
 // row and no query more similar.
@@ -136,15 +154,7 @@ TEST(NearestNeighborMatcher, ManyQueriesMatchAsTheDefinitionSays) {
   const DescriptorMatrix rows = RandomUnitRows(num_rows, 32, 11);
   std::vector<uint32_t> row_points(num_rows);
   for (int j = 0; j < num_rows; ++j) row_points[j] = static_cast<uint32_t>(j / 2);
-  Random random(12);
-  const DescriptorMatrix noise = RandomUnitRows(700, 32, 13);
-  DescriptorMatrix query(700, 32);
-  for (int q = 0; q < query.rows(); ++q) {
-    const float noise_level = q % 3 == 0 ? 2.0f : 0.4f;
-    query.row(q) =
-        rows.row(static_cast<int64_t>(random.UniformInt(num_rows))) + noise_level * noise.row(q);
-  }
-  query = UnitRows(query);
+  const DescriptorMatrix query = NoisyQueriesOf(rows, 700, 12);
   for (const NearestNeighborOptions options :
        {NearestNeighborOptions{.ratio = 0.9, .mutual = true},
         NearestNeighborOptions{.ratio = 0.8, .mutual = false},
@@ -167,6 +177,54 @@ TEST(NearestNeighborMatcher, ManyQueriesMatchAsTheDefinitionSays) {
   const CandidateMatches expected = MatchByDefinition(query, rows, row_points, options);
   EXPECT_EQ(strided.keypoints, expected.keypoints);
   EXPECT_EQ(strided.point_indices, expected.point_indices);
+}
+
+// Sets of rows that overlap, as neighbouring images' points do: each set's count is what matching
+// its rows alone gives, with each filter, on one thread and on several slices of the queries.
+TEST(CountNearestRowMatchesTest, CountsWhatMatchingEachSetAloneFinds) {
+  const int num_rows = 900;
+  const DescriptorMatrix rows = RandomUnitRows(num_rows, 32, 21);
+  Random random(22);
+  std::vector<std::vector<uint32_t>> sets(7);
+  for (size_t set = 0; set < sets.size(); ++set) {
+    // Windows of rows that overlap their neighbours, thinned at random.
+    for (uint32_t row = static_cast<uint32_t>(set) * 100; row < set * 100 + 300 && row < num_rows;
+         ++row) {
+      if (random.Uniform() < 0.7) sets[set].push_back(row);
+    }
+  }
+  sets.push_back({});  // an image that sees none of the rows
+  const DescriptorMatrix query = NoisyQueriesOf(rows, 400, 23);
+  for (const NearestNeighborOptions options :
+       {NearestNeighborOptions{.ratio = 0.9, .mutual = true},
+        NearestNeighborOptions{.ratio = 0.8, .mutual = false},
+        NearestNeighborOptions{.ratio = 1.0, .mutual = true}}) {
+    std::vector<int> expected;
+    for (const std::vector<uint32_t>& set : sets) {
+      DescriptorMatrix set_rows(static_cast<int64_t>(set.size()), rows.cols());
+      for (size_t i = 0; i < set.size(); ++i)
+        set_rows.row(static_cast<int64_t>(i)) = rows.row(set[i]);
+      expected.push_back(
+          static_cast<int>(MatchNearestRows(query, set_rows, set.data(), options).size()));
+    }
+    for (const int threads : {1, 3}) {
+      EXPECT_EQ(CountNearestRowMatches(query, rows, sets, options, threads), expected)
+          << options.ratio << " " << options.mutual << " on " << threads << " threads";
+    }
+    // Every set but the empty one has matches, and the filters reject some.
+    EXPECT_GT(*std::min_element(expected.begin(), expected.end() - 1), 10);
+    EXPECT_EQ(expected.back(), 0);
+  }
+}
+
+TEST(CountNearestRowMatchesTest, RejectsSetsOutOfOrderOrPastTheRows) {
+  const DescriptorMatrix rows = RandomUnitRows(5, 8, 31);
+  const DescriptorMatrix query = RandomUnitRows(3, 8, 32);
+  const NearestNeighborOptions options;
+  EXPECT_EQ(CountNearestRowMatches(query, rows, {{0, 2, 4}, {1}}, options, 1).size(), 2u);
+  EXPECT_THROW(CountNearestRowMatches(query, rows, {{2, 1}}, options, 1), std::invalid_argument);
+  EXPECT_THROW(CountNearestRowMatches(query, rows, {{1, 1}}, options, 1), std::invalid_argument);
+  EXPECT_THROW(CountNearestRowMatches(query, rows, {{0, 5}}, options, 1), std::invalid_argument);
 }
 
 TEST(NearestNeighborMatcher, EmptySceneAndBadImageIndex) {
