@@ -174,6 +174,32 @@ bool AlreadyTried(const std::vector<LocalizationCandidate>& tried, uint32_t imag
 
 }  // namespace
 
+PoseResult Localizer::LocalizeKeypointSample(const LocalizationQuery& query,
+                                             const LocalizerOptions& options) const {
+  const Timer sample_timer;
+  const int64_t count = query.keypoints.rows();
+  const int64_t kept = options.max_keypoints;
+  LocalizationQuery sample{query.name, query.camera, KeypointMatrix(kept, 2),
+                           DescriptorMatrix(kept, query.descriptors.cols()),
+                           query.global_descriptor};
+  std::vector<int> rows(kept);
+  for (int64_t i = 0; i < kept; ++i) {
+    rows[i] = static_cast<int>(i * count / kept);
+    sample.keypoints.row(i) = query.keypoints.row(rows[i]);
+    sample.descriptors.row(i) = query.descriptors.row(rows[i]);
+  }
+  if (!sample.global_descriptor.has_value() && options.retrieval != RetrievalMode::kVotes) {
+    sample.global_descriptor = map_->vlad()->Encode(query.descriptors, ComputeThreads());
+  }
+  // The sample and the global descriptor of every keypoint count as retrieval's.
+  const double sample_ms = sample_timer.ElapsedMilliseconds();
+  PoseResult result = Localize(sample, options);
+  for (int& keypoint : result.match_keypoints) keypoint = rows[keypoint];
+  result.timings.retrieval_ms += sample_ms;
+  result.timings.total_ms += sample_ms;
+  return result;
+}
+
 std::vector<LocalizationCandidate> Localizer::Retrieve(
     const Eigen::VectorXf& global_descriptor, int count,
     const std::vector<LocalizationCandidate>& tried) const {
@@ -451,6 +477,9 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   }
   CheckOptionsFit(options);
   CheckQuery(query);
+  if (options.max_keypoints > 0 && query.keypoints.rows() > options.max_keypoints) {
+    return LocalizeKeypointSample(query, options);
+  }
   const Timer total_timer;
   Evaluation evaluation;
   PoseResult& result = evaluation.result;

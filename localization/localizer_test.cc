@@ -9,6 +9,7 @@
 #include <map>
 #include <set>
 #include <thread>
+#include <vector>
 
 #include "localization/ablation.h"
 #include "localization/localizer_test_support.h"
@@ -18,6 +19,7 @@
 #include "model/trainer.h"
 #include "scene/feature_io.h"
 #include "scene/query_io.h"
+#include "util/parallel.h"
 #include "util/testing.h"
 
 namespace hscloc {
@@ -248,6 +250,58 @@ TEST_F(SmallCityLocalizerTest, ResultDescribesTheWinningCandidate) {
       [](const LocalizationCandidate& c) { return c.source == CandidateSource::kPointVotes; });
   EXPECT_EQ(result.timings.rounds, voted ? 2 : 1);
   EXPECT_EQ(result.timings.votes_ms > 0, voted);
+}
+
+// A query past max_keypoints is localized on that many of its keypoints, evenly spaced: the pose
+// is that of the sample as a query of its own, and the matches name the query's own keypoint
+// rows, whose inliers reproject within the threshold.
+TEST_F(SmallCityLocalizerTest, KeypointsPastTheLimitAreNotMatched) {
+  const LocalizationQuery& query = Set("day").queries.front();
+  const int64_t count = query.keypoints.rows();
+  ASSERT_GE(count, 200);
+  LocalizerOptions limited;
+  limited.max_keypoints = static_cast<int>(count / 2);
+  LocalizationQuery sample = query;
+  std::vector<int> rows;
+  for (int64_t i = 0; i < limited.max_keypoints; ++i) {
+    rows.push_back(static_cast<int>(i * count / limited.max_keypoints));
+  }
+  for (size_t i = 0; i < rows.size(); ++i) {
+    sample.keypoints.row(static_cast<int64_t>(i)) = query.keypoints.row(rows[i]);
+    sample.descriptors.row(static_cast<int64_t>(i)) = query.descriptors.row(rows[i]);
+  }
+  sample.keypoints.conservativeResize(limited.max_keypoints, 2);
+  sample.descriptors.conservativeResize(limited.max_keypoints, Eigen::NoChange);
+  // The full query's global descriptor, which the limited run pools from every keypoint.
+  sample.global_descriptor = localizer().map().vlad()->Encode(query.descriptors, ComputeThreads());
+
+  const PoseResult result = localizer().Localize(query, limited);
+  LocalizerOptions every_keypoint = limited;
+  every_keypoint.max_keypoints = 0;
+  const PoseResult of_sample = localizer().Localize(sample, every_keypoint);
+  ASSERT_TRUE(result.success) << result.failure_reason;
+  ASSERT_TRUE(of_sample.success) << of_sample.failure_reason;
+  EXPECT_EQ(result.num_inliers, of_sample.num_inliers);
+  EXPECT_TRUE(result.cam_from_world.translation.isApprox(of_sample.cam_from_world.translation));
+  ASSERT_EQ(result.match_keypoints.size(), of_sample.match_keypoints.size());
+  const double threshold = limited.pose.max_reprojection_error_px;
+  for (size_t i = 0; i < result.match_keypoints.size(); ++i) {
+    EXPECT_EQ(result.match_keypoints[i], rows[of_sample.match_keypoints[i]]);
+    if (result.match_inliers[i] != 1) continue;
+    const Eigen::Vector3d point_in_cam =
+        result.cam_from_world * localizer().map().scene().points[result.match_points[i]];
+    const Eigen::Vector2d keypoint =
+        query.keypoints.row(result.match_keypoints[i]).transpose().cast<double>();
+    ASSERT_GT(point_in_cam.z(), 0);
+    EXPECT_LE((query.camera.ImgFromPointInCam(point_in_cam) - keypoint).norm(), threshold);
+  }
+  // Under the limit, the query is localized as it is.
+  LocalizerOptions roomy = limited;
+  roomy.max_keypoints = static_cast<int>(count);
+  const PoseResult whole = localizer().Localize(query, roomy);
+  const PoseResult whole_unlimited = localizer().Localize(query, every_keypoint);
+  EXPECT_EQ(whole.num_inliers, whole_unlimited.num_inliers);
+  EXPECT_EQ(whole.match_keypoints, whole_unlimited.match_keypoints);
 }
 
 // RANSAC samples the network's matches by confidence, in another order than theirs: each inlier

@@ -151,6 +151,12 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
                    "the most matches posed (needs a map built with point descriptors; 0: never)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  command
+      ->add_option("--max-keypoints", options.max_keypoints,
+                   "Keypoints matched at most, evenly spaced in the query's order; retrieval's "
+                   "global descriptor still pools them all (0: every keypoint)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   command->add_flag("--exact-votes", options.exact_votes,
                     "Score every point of the map in the votes' pass, also on a map large enough "
                     "for the point row index");
