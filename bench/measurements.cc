@@ -191,7 +191,7 @@ json LatencyGrid(const Localizer& localizer, const std::vector<LocalizationQuery
         LocalizerOptions options;
         options.top_k = top_k;
         options.candidate_search = search;
-        options.max_keypoints = 0;  // each row's N keypoints all go through the network
+        options.max_matched_keypoints = 0;  // each row's N keypoints all go through the network
         const bool exhaustive = search == CandidateSearch::kAll;
         std::vector<double> retrieval, matching, visibility, pose, total;
         int localized = 0;

@@ -178,7 +178,7 @@ PoseResult Localizer::LocalizeKeypointSample(const LocalizationQuery& query,
                                              const LocalizerOptions& options) const {
   const Timer sample_timer;
   const int64_t count = query.keypoints.rows();
-  const int64_t kept = options.max_keypoints;
+  const int64_t kept = options.max_matched_keypoints;
   LocalizationQuery sample{query.name, query.camera, KeypointMatrix(kept, 2),
                            DescriptorMatrix(kept, query.descriptors.cols()),
                            query.global_descriptor};
@@ -477,7 +477,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   }
   CheckOptionsFit(options);
   CheckQuery(query);
-  if (options.max_keypoints > 0 && query.keypoints.rows() > options.max_keypoints) {
+  if (options.max_matched_keypoints > 0 && query.keypoints.rows() > options.max_matched_keypoints) {
     return LocalizeKeypointSample(query, options);
   }
   const Timer total_timer;

@@ -127,7 +127,7 @@ struct LocalizerOptions {
   // scores), while retrieval's global descriptor still pools them all. The network's work grows
   // with the keypoints and a pose needs tens of matches: on aachen a 4,096-keypoint day query
   // spends most of its time in the network (docs/decisions.md). 0: every keypoint.
-  int max_keypoints = 2048;
+  int max_matched_keypoints = 2048;
   // The votes' pass without an image id scores every point of the map at its first level; on a
   // map of at least PointRowIndex::kMinPoints points it probes the point row index instead
   // (model/point_row_index.h), unless this asks for the exact pass.
@@ -285,8 +285,9 @@ class Localizer {
   std::vector<LocalizationCandidate> RetrieveByNearestPoints(
       const LocalizationQuery& query, const LocalizerOptions& options,
       const Eigen::VectorXf& global_descriptor) const;
-  // Localize on max_keypoints of the query's keypoints (LocalizerOptions::max_keypoints), the
-  // matches reported by the query's own keypoint rows.
+  // Localize on max_matched_keypoints of the query's keypoints
+  // (LocalizerOptions::max_matched_keypoints), the matches reported by the query's own keypoint
+  // rows.
   PoseResult LocalizeKeypointSample(const LocalizationQuery& query,
                                     const LocalizerOptions& options) const;
   // How many matches MatchNearestPoints finds in each of `images`, the union of their points

@@ -78,9 +78,9 @@ void LocalizerOptions::Check() const {
   THROW_CHECK_MSG(nearest_point_candidates >= 0,
                   "LocalizerOptions.nearest_point_candidates = {} (0: never)",
                   nearest_point_candidates);
-  THROW_CHECK_MSG(max_keypoints == 0 || max_keypoints >= 4,
-                  "LocalizerOptions.max_keypoints = {} (0: every keypoint; a pose needs 4)",
-                  max_keypoints);
+  THROW_CHECK_MSG(max_matched_keypoints == 0 || max_matched_keypoints >= 4,
+                  "LocalizerOptions.max_matched_keypoints = {} (0: every keypoint; a pose needs 4)",
+                  max_matched_keypoints);
   THROW_CHECK_MSG(first_look_samples >= 0, "LocalizerOptions.first_look_samples = {} (0: none)",
                   first_look_samples);
   nearest_neighbor.Check();

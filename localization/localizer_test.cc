@@ -252,32 +252,32 @@ TEST_F(SmallCityLocalizerTest, ResultDescribesTheWinningCandidate) {
   EXPECT_EQ(result.timings.votes_ms > 0, voted);
 }
 
-// A query past max_keypoints is localized on that many of its keypoints, evenly spaced: the pose
-// is that of the sample as a query of its own, and the matches name the query's own keypoint
+// A query past max_matched_keypoints is localized on that many of its keypoints, evenly spaced: the
+// pose is that of the sample as a query of its own, and the matches name the query's own keypoint
 // rows, whose inliers reproject within the threshold.
 TEST_F(SmallCityLocalizerTest, KeypointsPastTheLimitAreNotMatched) {
   const LocalizationQuery& query = Set("day").queries.front();
   const int64_t count = query.keypoints.rows();
   ASSERT_GE(count, 200);
   LocalizerOptions limited;
-  limited.max_keypoints = static_cast<int>(count / 2);
+  limited.max_matched_keypoints = static_cast<int>(count / 2);
   LocalizationQuery sample = query;
   std::vector<int> rows;
-  for (int64_t i = 0; i < limited.max_keypoints; ++i) {
-    rows.push_back(static_cast<int>(i * count / limited.max_keypoints));
+  for (int64_t i = 0; i < limited.max_matched_keypoints; ++i) {
+    rows.push_back(static_cast<int>(i * count / limited.max_matched_keypoints));
   }
   for (size_t i = 0; i < rows.size(); ++i) {
     sample.keypoints.row(static_cast<int64_t>(i)) = query.keypoints.row(rows[i]);
     sample.descriptors.row(static_cast<int64_t>(i)) = query.descriptors.row(rows[i]);
   }
-  sample.keypoints.conservativeResize(limited.max_keypoints, 2);
-  sample.descriptors.conservativeResize(limited.max_keypoints, Eigen::NoChange);
+  sample.keypoints.conservativeResize(limited.max_matched_keypoints, 2);
+  sample.descriptors.conservativeResize(limited.max_matched_keypoints, Eigen::NoChange);
   // The full query's global descriptor, which the limited run pools from every keypoint.
   sample.global_descriptor = localizer().map().vlad()->Encode(query.descriptors, ComputeThreads());
 
   const PoseResult result = localizer().Localize(query, limited);
   LocalizerOptions every_keypoint = limited;
-  every_keypoint.max_keypoints = 0;
+  every_keypoint.max_matched_keypoints = 0;
   const PoseResult of_sample = localizer().Localize(sample, every_keypoint);
   ASSERT_TRUE(result.success) << result.failure_reason;
   ASSERT_TRUE(of_sample.success) << of_sample.failure_reason;
@@ -297,7 +297,7 @@ TEST_F(SmallCityLocalizerTest, KeypointsPastTheLimitAreNotMatched) {
   }
   // Under the limit, the query is localized as it is.
   LocalizerOptions roomy = limited;
-  roomy.max_keypoints = static_cast<int>(count);
+  roomy.max_matched_keypoints = static_cast<int>(count);
   const PoseResult whole = localizer().Localize(query, roomy);
   const PoseResult whole_unlimited = localizer().Localize(query, every_keypoint);
   EXPECT_EQ(whole.num_inliers, whole_unlimited.num_inliers);

@@ -152,7 +152,7 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   command
-      ->add_option("--max-keypoints", options.max_keypoints,
+      ->add_option("--max-matched-keypoints", options.max_matched_keypoints,
                    "Keypoints matched at most, evenly spaced in the query's order; retrieval's "
                    "global descriptor still pools them all (0: every keypoint)")
       ->check(CLI::NonNegativeNumber)

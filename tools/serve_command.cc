@@ -196,7 +196,15 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
       ->add_option("--max-message-bytes", options.max_message_bytes,
                    "Larger messages are dropped by ZeroMQ")
       ->capture_default_str();
-  command->add_option("--max-keypoints", options.limits.max_keypoints, "Keypoints per request")
+  command
+      ->add_option("--max-keypoints", options.limits.max_keypoints,
+                   "Keypoints per request; a request with more is refused")
+      ->capture_default_str();
+  command
+      ->add_option("--max-matched-keypoints", options.localizer.max_matched_keypoints,
+                   "Keypoints of a request matched at most, evenly spaced in its order; retrieval "
+                   "pools them all (0: every keypoint)")
+      ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   command
       ->add_option("--matcher", arguments->matcher,
