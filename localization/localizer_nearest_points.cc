@@ -49,9 +49,14 @@ std::vector<int> Localizer::CountNearestPointMatches(
     }
     std::sort(rows_of_images[k].begin(), rows_of_images[k].end());
   }
-  const DescriptorMatrix rows = map_->point_descriptors().UnitRows(points.data(), points.size());
-  return CountNearestRowMatches(UnitRows(query.descriptors), rows, rows_of_images,
-                                options.nearest_neighbor, ComputeThreads());
+  // Decoded a block at a time: the union of 200 images' points is 200 MB of floats on aachen.
+  const PointDescriptors& descriptors = map_->point_descriptors();
+  return CountNearestRowMatches(
+      UnitRows(query.descriptors), static_cast<int64_t>(points.size()),
+      [&](int64_t first, int64_t count) {
+        return descriptors.UnitRows(points.data() + first, static_cast<size_t>(count));
+      },
+      rows_of_images, options.nearest_neighbor, ComputeThreads());
 }
 
 std::vector<LocalizationCandidate> Localizer::RetrieveByNearestPoints(

@@ -203,10 +203,9 @@ void ScanRowIntoSet(const float* similarities, int64_t num_queries, int32_t row,
 }
 
 QuerySliceScan ScanQuerySlice(const DescriptorMatrix& unit_query, int64_t first_query,
-                              int64_t num_queries, const DescriptorMatrix& rows,
+                              int64_t num_queries, int64_t num_rows, const UnitRowReader& read_rows,
                               const SetsOfRows& inverse, size_t num_sets) {
   constexpr float kNone = -std::numeric_limits<float>::infinity();
-  const int64_t num_rows = rows.rows();
   QuerySliceScan scan{first_query,
                       num_queries,
                       std::vector<float>(num_sets * num_queries, kNone),
@@ -217,14 +216,17 @@ QuerySliceScan ScanQuerySlice(const DescriptorMatrix& unit_query, int64_t first_
   // The queries are the product's packed side here: a row's similarities to them lie side by side,
   // as ScanRowIntoSet reads them for every set that holds the row.
   const dense_kernels::PackedMatrix packed_queries =
-      dense_kernels::PackMatrix(unit_query.row(first_query).data(), num_queries, rows.cols());
+      dense_kernels::PackMatrix(unit_query.row(first_query).data(), num_queries, unit_query.cols());
   const std::vector<float> no_bias(num_queries, 0.0f);
   const int64_t block_rows = std::min(num_rows, RowsPerBlock(num_queries));
   std::vector<float> block(block_rows * num_queries);
   for (int64_t first_row = 0; first_row < num_rows; first_row += block_rows) {
     const int64_t size = std::min(block_rows, num_rows - first_row);
-    dense_kernels::Linear(rows.row(first_row).data(), size, packed_queries, no_bias.data(), false,
-                          block.data());
+    const DescriptorMatrix rows = read_rows(first_row, size);
+    THROW_CHECK_MSG(rows.rows() == size && rows.cols() == unit_query.cols(),
+                    "CountNearestRowMatches: asked for {} rows of dimension {}, read {} x {}", size,
+                    unit_query.cols(), rows.rows(), rows.cols());
+    dense_kernels::Linear(rows.data(), size, packed_queries, no_bias.data(), false, block.data());
     for (int64_t i = 0; i < size; ++i) {
       const int64_t row = first_row + i;
       const float* similarities = block.data() + i * num_queries;
@@ -259,18 +261,17 @@ std::vector<int32_t> BestQueryOfEachRow(const std::vector<QuerySliceScan>& slice
 
 }  // namespace
 
-std::vector<int> CountNearestRowMatches(const DescriptorMatrix& unit_query,
-                                        const DescriptorMatrix& rows,
+std::vector<int> CountNearestRowMatches(const DescriptorMatrix& unit_query, int64_t num_rows,
+                                        const UnitRowReader& read_rows,
                                         const std::vector<std::vector<uint32_t>>& sets,
                                         const NearestNeighborOptions& options, int num_threads) {
   // Fewer queries per thread than this would spend more on each slice's pass over the rows than
   // the threads save.
   constexpr int64_t kMinQueriesPerSlice = 64;
-  const SetsOfRows inverse = InvertSets(sets, rows.rows());
+  const SetsOfRows inverse = InvertSets(sets, num_rows);
   std::vector<int> counts(sets.size(), 0);
   const int64_t num_queries = unit_query.rows();
-  if (num_queries == 0 || rows.rows() == 0 || sets.empty()) return counts;
-  THROW_CHECK_EQ(unit_query.cols(), rows.cols());
+  if (num_queries == 0 || num_rows == 0 || sets.empty()) return counts;
   const int threads = ResolveNumThreads(num_threads);
   const int64_t num_slices =
       std::clamp<int64_t>(num_queries / kMinQueriesPerSlice, 1, std::max(threads, 1));
@@ -279,7 +280,8 @@ std::vector<int> CountNearestRowMatches(const DescriptorMatrix& unit_query,
     for (size_t k = begin; k < end; ++k) {
       const int64_t first = num_queries * static_cast<int64_t>(k) / num_slices;
       const int64_t last = num_queries * static_cast<int64_t>(k + 1) / num_slices;
-      slices[k] = ScanQuerySlice(unit_query, first, last - first, rows, inverse, sets.size());
+      slices[k] = ScanQuerySlice(unit_query, first, last - first, num_rows, read_rows, inverse,
+                                 sets.size());
     }
   });
   const std::vector<int32_t> best_query_of_row =

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "scene/features.h"
@@ -47,15 +48,20 @@ CandidateMatches MatchNearestRows(const DescriptorMatrix& unit_query,
                                   const uint32_t* row_points,
                                   const NearestNeighborOptions& options);
 
+// Unit rows [first, first + count) of a set of rows, each row read once per thread that scans
+// them: the rows need not all be held at once.
+using UnitRowReader = std::function<DescriptorMatrix(int64_t first, int64_t count)>;
+
 // The number of matches MatchNearestRows gives between unit query rows and each of several sets
-// of `rows` that share many of them (the points that neighbouring database images see): each row's
-// similarities to the queries are computed once for every set that holds it, where matching the
-// sets one by one computes them once per set. sets[s] lists indices into `rows` in increasing
-// order, each row standing for its own point; the counts are MatchNearestRows' to the bit (the
-// same products, the same ties). The queries are split over num_threads threads (<= 0: all
-// cores). Throws std::invalid_argument for a row index past `rows` or a set out of order.
-std::vector<int> CountNearestRowMatches(const DescriptorMatrix& unit_query,
-                                        const DescriptorMatrix& rows,
+// of num_rows rows that share many of them (the points that neighbouring database images see):
+// each row's similarities to the queries are computed once for every set that holds it, where
+// matching the sets one by one computes them once per set. read_rows gives the rows a block at a
+// time. sets[s] lists row indices in increasing order, each row standing for its own point; the
+// counts are MatchNearestRows' to the bit (the same products, the same ties). The queries are split
+// over num_threads threads (<= 0: all cores). Throws std::invalid_argument for a row index past
+// num_rows, a set out of order, or a block of another shape than asked for.
+std::vector<int> CountNearestRowMatches(const DescriptorMatrix& unit_query, int64_t num_rows,
+                                        const UnitRowReader& read_rows,
                                         const std::vector<std::vector<uint32_t>>& sets,
                                         const NearestNeighborOptions& options, int num_threads);
 

@@ -179,6 +179,12 @@ TEST(NearestNeighborMatcher, ManyQueriesMatchAsTheDefinitionSays) {
   EXPECT_EQ(strided.point_indices, expected.point_indices);
 }
 
+UnitRowReader ReaderOf(const DescriptorMatrix& rows) {
+  return [&rows](int64_t first, int64_t count) {
+    return DescriptorMatrix(rows.middleRows(first, count));
+  };
+}
+
 // Sets of rows that overlap, as neighbouring images' points do: each set's count is what matching
 // its rows alone gives, with each filter, on one thread and on several slices of the queries.
 TEST(CountNearestRowMatchesTest, CountsWhatMatchingEachSetAloneFinds) {
@@ -208,7 +214,8 @@ TEST(CountNearestRowMatchesTest, CountsWhatMatchingEachSetAloneFinds) {
           static_cast<int>(MatchNearestRows(query, set_rows, set.data(), options).size()));
     }
     for (const int threads : {1, 3}) {
-      EXPECT_EQ(CountNearestRowMatches(query, rows, sets, options, threads), expected)
+      EXPECT_EQ(CountNearestRowMatches(query, num_rows, ReaderOf(rows), sets, options, threads),
+                expected)
           << options.ratio << " " << options.mutual << " on " << threads << " threads";
     }
     // Every set but the empty one has matches, and the filters reject some.
@@ -221,10 +228,19 @@ TEST(CountNearestRowMatchesTest, RejectsSetsOutOfOrderOrPastTheRows) {
   const DescriptorMatrix rows = RandomUnitRows(5, 8, 31);
   const DescriptorMatrix query = RandomUnitRows(3, 8, 32);
   const NearestNeighborOptions options;
-  EXPECT_EQ(CountNearestRowMatches(query, rows, {{0, 2, 4}, {1}}, options, 1).size(), 2u);
-  EXPECT_THROW(CountNearestRowMatches(query, rows, {{2, 1}}, options, 1), std::invalid_argument);
-  EXPECT_THROW(CountNearestRowMatches(query, rows, {{1, 1}}, options, 1), std::invalid_argument);
-  EXPECT_THROW(CountNearestRowMatches(query, rows, {{0, 5}}, options, 1), std::invalid_argument);
+  EXPECT_EQ(CountNearestRowMatches(query, 5, ReaderOf(rows), {{0, 2, 4}, {1}}, options, 1).size(),
+            2u);
+  for (const std::vector<uint32_t>& bad :
+       std::vector<std::vector<uint32_t>>{{2, 1}, {1, 1}, {0, 5}}) {
+    EXPECT_THROW(CountNearestRowMatches(query, 5, ReaderOf(rows), {bad}, options, 1),
+                 std::invalid_argument);
+  }
+  // A reader that gives fewer rows than asked for.
+  const UnitRowReader short_reader = [&](int64_t first, int64_t count) {
+    return DescriptorMatrix(rows.middleRows(first, count - 1));
+  };
+  EXPECT_THROW(CountNearestRowMatches(query, 5, short_reader, {{0, 1}}, options, 1),
+               std::invalid_argument);
 }
 
 TEST(NearestNeighborMatcher, EmptySceneAndBadImageIndex) {
