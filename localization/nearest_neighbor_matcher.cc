@@ -189,19 +189,6 @@ struct QuerySliceScan {
   std::vector<int32_t> row_best_query;
 };
 
-// BestRowPassingRatio's scan, one row at a time, over every query of a set: a row above a query's
-// best makes the old best its second, and a tie goes to the earlier row.
-void ScanRowIntoSet(const float* similarities, int64_t num_queries, int32_t row, float* best,
-                    float* second, int32_t* best_row) {
-  for (int64_t query = 0; query < num_queries; ++query) {
-    const float value = similarities[query];
-    const bool above = value > best[query];
-    second[query] = above ? best[query] : std::max(second[query], value);
-    best_row[query] = above ? row : best_row[query];
-    best[query] = above ? value : best[query];
-  }
-}
-
 QuerySliceScan ScanQuerySlice(const DescriptorMatrix& unit_query, int64_t first_query,
                               int64_t num_queries, int64_t num_rows, const UnitRowReader& read_rows,
                               const SetsOfRows& inverse, size_t num_sets) {
@@ -230,14 +217,15 @@ QuerySliceScan ScanQuerySlice(const DescriptorMatrix& unit_query, int64_t first_
     for (int64_t i = 0; i < size; ++i) {
       const int64_t row = first_row + i;
       const float* similarities = block.data() + i * num_queries;
-      const float* best_query = std::max_element(similarities, similarities + num_queries);
-      scan.row_best_similarity[row] = *best_query;
-      scan.row_best_query[row] = static_cast<int32_t>(first_query + (best_query - similarities));
+      const int64_t best_query = dense_kernels::FirstArgMax(similarities, num_queries);
+      scan.row_best_similarity[row] = similarities[best_query];
+      scan.row_best_query[row] = static_cast<int32_t>(first_query + best_query);
+      // BestRowPassingRatio's scan, a row at a time over every query, for each set of the row.
       for (int64_t k = inverse.first_set[row]; k < inverse.first_set[row + 1]; ++k) {
         const int64_t offset = int64_t{inverse.sets[k]} * num_queries;
-        ScanRowIntoSet(similarities, num_queries, static_cast<int32_t>(row),
-                       scan.best.data() + offset, scan.second.data() + offset,
-                       scan.best_row.data() + offset);
+        dense_kernels::UpdateBestTwo(similarities, num_queries, static_cast<int32_t>(row),
+                                     scan.best.data() + offset, scan.second.data() + offset,
+                                     scan.best_row.data() + offset);
       }
     }
   }

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstring>
 #include <limits>
 #include <utility>
 #include <vector>
@@ -373,6 +374,37 @@ float MaxOf(const float* values, int64_t count) {
 }
 
 }  // namespace
+
+void UpdateBestTwo(const float* values, int64_t count, int32_t index, float* best, float* second,
+                   int32_t* best_index) {
+  // The indices are blended as float lanes holding their bits: a blend moves bits unchanged.
+  static_assert(sizeof(int32_t) == sizeof(float));
+  float index_bits;
+  std::memcpy(&index_bits, &index, sizeof(index));
+  const Packet index_packet = ei::pset1<Packet>(index_bits);
+  float* index_lanes = reinterpret_cast<float*>(best_index);
+  int64_t i = 0;
+  for (; i + kLanes <= count; i += kLanes) {
+    const Packet value = ei::ploadu<Packet>(values + i);
+    const Packet old_best = ei::ploadu<Packet>(best + i);
+    const Packet above = ei::pcmp_lt(old_best, value);
+    ei::pstoreu(second + i,
+                ei::pselect(above, old_best, ei::pmax(ei::ploadu<Packet>(second + i), value)));
+    ei::pstoreu(best + i, ei::pselect(above, value, old_best));
+    ei::pstoreu(index_lanes + i,
+                ei::pselect(above, index_packet, ei::ploadu<Packet>(index_lanes + i)));
+  }
+  for (; i < count; ++i) {
+    const bool above = values[i] > best[i];
+    second[i] = above ? best[i] : std::max(second[i], values[i]);
+    best_index[i] = above ? index : best_index[i];
+    best[i] = above ? values[i] : best[i];
+  }
+}
+
+int64_t FirstArgMax(const float* values, int64_t count) {
+  return std::find(values, values + count, MaxOf(values, count)) - values;
+}
 
 void SoftmaxNormalizers(const float* logits, int64_t rows, int64_t columns,
                         SoftmaxNormalizer* normalizers) {

@@ -71,6 +71,15 @@ void BestPointLogSumExpLogits(const float* projected, int64_t num_inputs, int64_
                               const uint8_t* segment_groups, int64_t num_segments,
                               int64_t out_columns, float* out);
 
+// One more candidate for each of `count` queries, given its similarity to each (values) and its
+// index: where the value is above best[q], the old best becomes second[q] and the candidate
+// best_index[q]; elsewhere second[q] keeps the larger of the two. Candidates scanned so in order
+// leave each query its best and second-best similarity and the first candidate with the best.
+void UpdateBestTwo(const float* values, int64_t count, int32_t index, float* best, float* second,
+                   int32_t* best_index);
+// The index of the first largest of values[0, count), count > 0.
+int64_t FirstArgMax(const float* values, int64_t count);
+
 // The softmax of rows of logits, never written out: the label choice needs one child's
 // probability per row, and the logits' order is the probabilities' order. Per row, its largest
 // logit and the inverse of its sum of exp(logit - largest); a row's trailing -inf values (children

@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <functional>
 #include <limits>
 #include <string>
@@ -159,6 +160,49 @@ TEST(DenseKernelsTest, EluFollowsExpm1OverTheWholeNegativeRange) {
     const double tolerance = 4e-7 * std::exp(double{values[i]}) + 1e-7 * std::abs(expected);
     EXPECT_NEAR(elu[i], expected, std::max(tolerance, 1e-37)) << values[i];
   }
+}
+
+// Candidates scanned in order: each query keeps its best and second-best value and the first
+// candidate with the best, as a scalar scan does; ties included, at lengths that leave a tail.
+TEST(DenseKernelsTest, UpdateBestTwoKeepsWhatAScanInOrderKeeps) {
+  Random random(5);
+  for (const int64_t count : {1, 7, 8, 17, 64, 100}) {
+    constexpr float kNone = -std::numeric_limits<float>::infinity();
+    std::vector<float> best(count, kNone), second(count, kNone);
+    std::vector<int32_t> best_index(count, -1);
+    std::vector<float> expected_best(count, kNone), expected_second(count, kNone);
+    std::vector<int32_t> expected_index(count, -1);
+    for (int32_t candidate = 0; candidate < 12; ++candidate) {
+      std::vector<float> values(count);
+      // Seven distinct values: many ties.
+      for (float& value : values) value = 0.25f * static_cast<float>(random.UniformInt(7));
+      dense_kernels::UpdateBestTwo(values.data(), count, candidate, best.data(), second.data(),
+                                   best_index.data());
+      for (int64_t q = 0; q < count; ++q) {
+        if (values[q] > expected_best[q]) {
+          expected_second[q] = expected_best[q];
+          expected_best[q] = values[q];
+          expected_index[q] = candidate;
+        } else if (values[q] > expected_second[q]) {
+          expected_second[q] = values[q];
+        }
+      }
+    }
+    EXPECT_EQ(best, expected_best) << count;
+    EXPECT_EQ(second, expected_second) << count;
+    EXPECT_EQ(best_index, expected_index) << count;
+  }
+}
+
+TEST(DenseKernelsTest, FirstArgMaxFindsTheFirstOfEqualLargest) {
+  std::vector<float> values(37, -1.0f);
+  EXPECT_EQ(dense_kernels::FirstArgMax(values.data(), 37), 0);
+  values[30] = 2.0f;
+  values[35] = 2.0f;
+  EXPECT_EQ(dense_kernels::FirstArgMax(values.data(), 37), 30);
+  values[9] = 2.0f;
+  EXPECT_EQ(dense_kernels::FirstArgMax(values.data(), 37), 9);
+  EXPECT_EQ(dense_kernels::FirstArgMax(values.data(), 5), 0);
 }
 
 // Softmax of logits far below the largest: exp(x - max) can underflow, and no value leaves [0, 1]
