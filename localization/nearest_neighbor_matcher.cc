@@ -201,7 +201,7 @@ QuerySliceScan ScanQuerySlice(const DescriptorMatrix& unit_query, int64_t first_
                       std::vector<float>(num_rows),
                       std::vector<int32_t>(num_rows)};
   // The queries are the product's packed side here: a row's similarities to them lie side by side,
-  // as ScanRowIntoSet reads them for every set that holds the row.
+  // as UpdateBestTwo reads them for every set that holds the row.
   const dense_kernels::PackedMatrix packed_queries =
       dense_kernels::PackMatrix(unit_query.row(first_query).data(), num_queries, unit_query.cols());
   const std::vector<float> no_bias(num_queries, 0.0f);
