@@ -290,8 +290,8 @@ class Localizer {
   // rows.
   PoseResult LocalizeKeypointSample(const LocalizationQuery& query,
                                     const LocalizerOptions& options) const;
-  // How many matches MatchNearestPoints finds in each of `images`, the union of their points
-  // matched once (CountNearestRowMatches).
+  // About how many matches MatchNearestPoints finds in each of `images`, the union of their
+  // points matched once in 8-bit integers (CountNearestRowMatches).
   std::vector<int> CountNearestPointMatches(const LocalizationQuery& query,
                                             const std::vector<LocalizationCandidate>& images,
                                             const LocalizerOptions& options) const;

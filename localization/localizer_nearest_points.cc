@@ -28,9 +28,10 @@ CandidateMatches Localizer::MatchNearestPoints(const DescriptorMatrix& unit_quer
 std::vector<int> Localizer::CountNearestPointMatches(
     const LocalizationQuery& query, const std::vector<LocalizationCandidate>& images,
     const LocalizerOptions& options) const {
-  // Images near one another see many of the same points: their union is matched once. The counts
-  // are MatchNearestPoints' but for exact ties of similarity, which go to the point of lower
-  // index here and to the one the image lists first there; they only rank the images.
+  // Images near one another see many of the same points: their union is matched once, in 8-bit
+  // integers (CountNearestRowMatches). The counts are MatchNearestPoints' on the queries at 7 bits
+  // but for near ties of similarity; they only rank the images, and the round then matches its
+  // chosen images in floats.
   const Visibility& visibility = map_->visibility();
   std::vector<uint32_t> points;
   for (const LocalizationCandidate& image : images) {
@@ -49,12 +50,12 @@ std::vector<int> Localizer::CountNearestPointMatches(
     }
     std::sort(rows_of_images[k].begin(), rows_of_images[k].end());
   }
-  // Decoded a block at a time: the union of 200 images' points is 200 MB of floats on aachen.
+  // Read a block at a time: the union of 200 images' points is 50 MB of codes on aachen.
   const PointDescriptors& descriptors = map_->point_descriptors();
   return CountNearestRowMatches(
       UnitRows(query.descriptors), static_cast<int64_t>(points.size()),
       [&](int64_t first, int64_t count) {
-        return descriptors.UnitRows(points.data() + first, static_cast<size_t>(count));
+        return descriptors.CodeRows(points.data() + first, static_cast<size_t>(count));
       },
       rows_of_images, options.nearest_neighbor, ComputeThreads());
 }

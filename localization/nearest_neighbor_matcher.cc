@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 
+#include "model/code_kernels.h"
 #include "model/dense_kernels.h"
 #include "util/check.h"
 #include "util/parallel.h"
@@ -190,7 +191,7 @@ struct QuerySliceScan {
 };
 
 QuerySliceScan ScanQuerySlice(const DescriptorMatrix& unit_query, int64_t first_query,
-                              int64_t num_queries, int64_t num_rows, const UnitRowReader& read_rows,
+                              int64_t num_queries, int64_t num_rows, const RowCodeReader& read_rows,
                               const SetsOfRows& inverse, size_t num_sets) {
   constexpr float kNone = -std::numeric_limits<float>::infinity();
   QuerySliceScan scan{first_query,
@@ -200,23 +201,27 @@ QuerySliceScan ScanQuerySlice(const DescriptorMatrix& unit_query, int64_t first_
                       std::vector<int32_t>(num_sets * num_queries, -1),
                       std::vector<float>(num_rows),
                       std::vector<int32_t>(num_rows)};
-  // The queries are the product's packed side here: a row's similarities to them lie side by side,
-  // as UpdateBestTwo reads them for every set that holds the row.
-  const dense_kernels::PackedMatrix packed_queries =
-      dense_kernels::PackMatrix(unit_query.row(first_query).data(), num_queries, unit_query.cols());
-  const std::vector<float> no_bias(num_queries, 0.0f);
-  const int64_t block_rows = std::min(num_rows, RowsPerBlock(num_queries));
-  std::vector<float> block(block_rows * num_queries);
+  // The queries are the product's packed side: a row's similarities to them lie side by side, as
+  // UpdateBestTwo reads them for every set that holds the row.
+  const int64_t dimension = unit_query.cols();
+  const code_kernels::PackedQueryCodes packed_queries =
+      code_kernels::PackQueryCodes(unit_query.row(first_query).data(), num_queries, dimension);
+  const int64_t stride = packed_queries.padded_count;
+  const int64_t block_rows = std::min(num_rows, RowsPerBlock(stride));
+  std::vector<float> block(block_rows * stride);
+  std::vector<float> inverse_norms(block_rows);
   for (int64_t first_row = 0; first_row < num_rows; first_row += block_rows) {
     const int64_t size = std::min(block_rows, num_rows - first_row);
-    const DescriptorMatrix rows = read_rows(first_row, size);
-    THROW_CHECK_MSG(rows.rows() == size && rows.cols() == unit_query.cols(),
-                    "CountNearestRowMatches: asked for {} rows of dimension {}, read {} x {}", size,
-                    unit_query.cols(), rows.rows(), rows.cols());
-    dense_kernels::Linear(rows.data(), size, packed_queries, no_bias.data(), false, block.data());
+    const std::vector<int8_t> codes = read_rows(first_row, size);
+    THROW_CHECK_MSG(static_cast<int64_t>(codes.size()) == size * dimension,
+                    "CountNearestRowMatches: asked for {} rows of dimension {}, read {} codes",
+                    size, dimension, codes.size());
+    code_kernels::InverseCodeNorms(codes.data(), size, dimension, inverse_norms.data());
+    code_kernels::CodeSimilarities(codes.data(), inverse_norms.data(), size, packed_queries,
+                                   block.data());
     for (int64_t i = 0; i < size; ++i) {
       const int64_t row = first_row + i;
-      const float* similarities = block.data() + i * num_queries;
+      const float* similarities = block.data() + i * stride;
       const int64_t best_query = dense_kernels::FirstArgMax(similarities, num_queries);
       scan.row_best_similarity[row] = similarities[best_query];
       scan.row_best_query[row] = static_cast<int32_t>(first_query + best_query);
@@ -250,7 +255,7 @@ std::vector<int32_t> BestQueryOfEachRow(const std::vector<QuerySliceScan>& slice
 }  // namespace
 
 std::vector<int> CountNearestRowMatches(const DescriptorMatrix& unit_query, int64_t num_rows,
-                                        const UnitRowReader& read_rows,
+                                        const RowCodeReader& read_rows,
                                         const std::vector<std::vector<uint32_t>>& sets,
                                         const NearestNeighborOptions& options, int num_threads) {
   // Fewer queries per thread than this would spend more on each slice's pass over the rows than

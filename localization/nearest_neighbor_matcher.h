@@ -48,20 +48,23 @@ CandidateMatches MatchNearestRows(const DescriptorMatrix& unit_query,
                                   const uint32_t* row_points,
                                   const NearestNeighborOptions& options);
 
-// Unit rows [first, first + count) of a set of rows, each row read once per thread that scans
-// them: the rows need not all be held at once.
-using UnitRowReader = std::function<DescriptorMatrix(int64_t first, int64_t count)>;
+// Rows [first, first + count) of a set of rows as 8-bit codes, row-major (count x the queries'
+// dimension), each row standing for its direction (map/point_descriptors.h): the rows need not all
+// be held at once.
+using RowCodeReader = std::function<std::vector<int8_t>(int64_t first, int64_t count)>;
 
-// The number of matches MatchNearestRows gives between unit query rows and each of several sets
-// of num_rows rows that share many of them (the points that neighbouring database images see):
-// each row's similarities to the queries are computed once for every set that holds it, where
-// matching the sets one by one computes them once per set. read_rows gives the rows a block at a
-// time. sets[s] lists row indices in increasing order, each row standing for its own point; the
-// counts are MatchNearestRows' to the bit (the same products, the same ties). The queries are split
-// over num_threads threads (<= 0: all cores). Throws std::invalid_argument for a row index past
-// num_rows, a set out of order, or a block of another shape than asked for.
+// The number of matches MatchNearestRows gives between the queries at 7 bits and the code rows
+// (code_kernels::CodeSimilarities), in each of several sets of num_rows rows that share many of
+// them (the points that neighbouring database images see): each row's similarities to the queries
+// are computed once for every set that holds it, where matching the sets one by one computes them
+// once per set. The codes' products are exact integers, a quarter of a float row's bytes and
+// twice the float product's rate; the queries' rounding moves a cosine by about 1e-3, and the
+// counts only rank images. read_rows gives the rows a block at a time. sets[s] lists row indices
+// in increasing order, each row standing for its own point. The queries are split over
+// num_threads threads (<= 0: all cores). Throws std::invalid_argument for a row index past
+// num_rows, a set out of order, or a block of another size than asked for.
 std::vector<int> CountNearestRowMatches(const DescriptorMatrix& unit_query, int64_t num_rows,
-                                        const UnitRowReader& read_rows,
+                                        const RowCodeReader& read_rows,
                                         const std::vector<std::vector<uint32_t>>& sets,
                                         const NearestNeighborOptions& options, int num_threads);
 

@@ -4,9 +4,12 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
+#include <cstdint>
 #include <stdexcept>
 #include <vector>
 
+#include "model/code_kernels.h"
 #include "util/random.h"
 
 namespace hscloc {
@@ -179,17 +182,67 @@ TEST(NearestNeighborMatcher, ManyQueriesMatchAsTheDefinitionSays) {
   EXPECT_EQ(strided.point_indices, expected.point_indices);
 }
 
-UnitRowReader ReaderOf(const DescriptorMatrix& rows) {
-  return [&rows](int64_t first, int64_t count) {
-    return DescriptorMatrix(rows.middleRows(first, count));
+// Rows at 8 bits, as the map keeps its points' directions: each row's largest magnitude at 127.
+std::vector<int8_t> CodesOf(const DescriptorMatrix& rows) {
+  std::vector<int8_t> codes(rows.size());
+  for (int64_t r = 0; r < rows.rows(); ++r) {
+    const float largest = rows.row(r).cwiseAbs().maxCoeff();
+    for (int64_t d = 0; d < rows.cols(); ++d) {
+      codes[r * rows.cols() + d] = static_cast<int8_t>(std::lround(rows(r, d) / largest * 127));
+    }
+  }
+  return codes;
+}
+
+// The unit rows that codes stand for.
+DescriptorMatrix UnitRowsOfCodes(const std::vector<int8_t>& codes, int64_t dimension) {
+  DescriptorMatrix rows(static_cast<int64_t>(codes.size()) / dimension, dimension);
+  for (int64_t i = 0; i < rows.size(); ++i) rows.data()[i] = codes[i];
+  return UnitRows(rows);
+}
+
+// Unit queries rounded to 7 bits as CountNearestRowMatches rounds them.
+DescriptorMatrix QueriesAtSevenBits(const DescriptorMatrix& query) {
+  const code_kernels::PackedQueryCodes packed =
+      code_kernels::PackQueryCodes(query.data(), query.rows(), query.cols());
+  DescriptorMatrix rounded(query.rows(), query.cols());
+  for (int64_t q = 0; q < query.rows(); ++q) {
+    const std::vector<int8_t> codes = code_kernels::QueryCodesOf(packed, q);
+    for (int64_t d = 0; d < query.cols(); ++d) rounded(q, d) = codes[d];
+  }
+  return UnitRows(rounded);
+}
+
+RowCodeReader ReaderOf(const std::vector<int8_t>& codes, int64_t dimension) {
+  return [&codes, dimension](int64_t first, int64_t count) {
+    return std::vector<int8_t>(codes.begin() + first * dimension,
+                               codes.begin() + (first + count) * dimension);
   };
 }
 
+std::vector<int> CountsOfEachSet(const DescriptorMatrix& query, const DescriptorMatrix& rows,
+                                 const std::vector<std::vector<uint32_t>>& sets,
+                                 const NearestNeighborOptions& options) {
+  std::vector<int> counts;
+  for (const std::vector<uint32_t>& set : sets) {
+    DescriptorMatrix set_rows(static_cast<int64_t>(set.size()), rows.cols());
+    for (size_t i = 0; i < set.size(); ++i)
+      set_rows.row(static_cast<int64_t>(i)) = rows.row(set[i]);
+    counts.push_back(
+        static_cast<int>(MatchNearestRows(query, set_rows, set.data(), options).size()));
+  }
+  return counts;
+}
+
 // Sets of rows that overlap, as neighbouring images' points do: each set's count is what matching
-// its rows alone gives, with each filter, on one thread and on several slices of the queries.
+// its rows alone gives to the queries at 7 bits, with each filter, on one thread and on several
+// slices of the queries; and the rounding moves few of the full-precision queries' matches.
 TEST(CountNearestRowMatchesTest, CountsWhatMatchingEachSetAloneFinds) {
   const int num_rows = 900;
-  const DescriptorMatrix rows = RandomUnitRows(num_rows, 32, 21);
+  const int dimension = 32;
+  const DescriptorMatrix rows = RandomUnitRows(num_rows, dimension, 21);
+  const std::vector<int8_t> codes = CodesOf(rows);
+  const DescriptorMatrix coded_rows = UnitRowsOfCodes(codes, dimension);
   Random random(22);
   std::vector<std::vector<uint32_t>> sets(7);
   for (size_t set = 0; set < sets.size(); ++set) {
@@ -201,43 +254,44 @@ TEST(CountNearestRowMatchesTest, CountsWhatMatchingEachSetAloneFinds) {
   }
   sets.push_back({});  // an image that sees none of the rows
   const DescriptorMatrix query = NoisyQueriesOf(rows, 400, 23);
+  const DescriptorMatrix rounded_query = QueriesAtSevenBits(query);
   for (const NearestNeighborOptions options :
        {NearestNeighborOptions{.ratio = 0.9, .mutual = true},
         NearestNeighborOptions{.ratio = 0.8, .mutual = false},
         NearestNeighborOptions{.ratio = 1.0, .mutual = true}}) {
-    std::vector<int> expected;
-    for (const std::vector<uint32_t>& set : sets) {
-      DescriptorMatrix set_rows(static_cast<int64_t>(set.size()), rows.cols());
-      for (size_t i = 0; i < set.size(); ++i)
-        set_rows.row(static_cast<int64_t>(i)) = rows.row(set[i]);
-      expected.push_back(
-          static_cast<int>(MatchNearestRows(query, set_rows, set.data(), options).size()));
-    }
+    const std::vector<int> expected = CountsOfEachSet(rounded_query, coded_rows, sets, options);
     for (const int threads : {1, 3}) {
-      EXPECT_EQ(CountNearestRowMatches(query, num_rows, ReaderOf(rows), sets, options, threads),
+      EXPECT_EQ(CountNearestRowMatches(query, num_rows, ReaderOf(codes, dimension), sets, options,
+                                       threads),
                 expected)
           << options.ratio << " " << options.mutual << " on " << threads << " threads";
     }
     // Every set but the empty one has matches, and the filters reject some.
     EXPECT_GT(*std::min_element(expected.begin(), expected.end() - 1), 10);
     EXPECT_EQ(expected.back(), 0);
+    const std::vector<int> full_precision = CountsOfEachSet(query, rows, sets, options);
+    for (size_t set = 0; set < sets.size(); ++set) {
+      EXPECT_LE(std::abs(expected[set] - full_precision[set]), 2 + full_precision[set] / 50)
+          << set << ": " << expected[set] << " against " << full_precision[set];
+    }
   }
 }
 
 TEST(CountNearestRowMatchesTest, RejectsSetsOutOfOrderOrPastTheRows) {
-  const DescriptorMatrix rows = RandomUnitRows(5, 8, 31);
+  const std::vector<int8_t> codes = CodesOf(RandomUnitRows(5, 8, 31));
   const DescriptorMatrix query = RandomUnitRows(3, 8, 32);
   const NearestNeighborOptions options;
-  EXPECT_EQ(CountNearestRowMatches(query, 5, ReaderOf(rows), {{0, 2, 4}, {1}}, options, 1).size(),
-            2u);
+  EXPECT_EQ(
+      CountNearestRowMatches(query, 5, ReaderOf(codes, 8), {{0, 2, 4}, {1}}, options, 1).size(),
+      2u);
   for (const std::vector<uint32_t>& bad :
        std::vector<std::vector<uint32_t>>{{2, 1}, {1, 1}, {0, 5}}) {
-    EXPECT_THROW(CountNearestRowMatches(query, 5, ReaderOf(rows), {bad}, options, 1),
+    EXPECT_THROW(CountNearestRowMatches(query, 5, ReaderOf(codes, 8), {bad}, options, 1),
                  std::invalid_argument);
   }
   // A reader that gives fewer rows than asked for.
-  const UnitRowReader short_reader = [&](int64_t first, int64_t count) {
-    return DescriptorMatrix(rows.middleRows(first, count - 1));
+  const RowCodeReader short_reader = [&](int64_t first, int64_t count) {
+    return std::vector<int8_t>(codes.begin() + first * 8, codes.begin() + (first + count - 1) * 8);
   };
   EXPECT_THROW(CountNearestRowMatches(query, 5, short_reader, {{0, 1}}, options, 1),
                std::invalid_argument);

@@ -34,6 +34,18 @@ DescriptorMatrix PointDescriptors::UnitRows(const uint32_t* points, size_t count
   return rows;
 }
 
+std::vector<int8_t> PointDescriptors::CodeRows(const uint32_t* points, size_t count) const {
+  std::vector<int8_t> rows(count * static_cast<size_t>(dimension_));
+  for (size_t i = 0; i < count; ++i) {
+    if (points[i] >= NumPoints()) {
+      ThrowInvalidArgument("point descriptors: point {} of {}", points[i], NumPoints());
+    }
+    std::copy_n(codes_.data() + static_cast<size_t>(points[i]) * dimension_, dimension_,
+                rows.data() + i * dimension_);
+  }
+  return rows;
+}
+
 void PointDescriptors::Write(std::ostream& stream) const {
   WriteBinary(stream, kMagic);
   WriteBinary(stream, kVersion);

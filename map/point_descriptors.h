@@ -26,6 +26,10 @@ class PointDescriptors {
   // The unit rows of `points`, in that order (a point never observed is a zero row). Throws
   // std::invalid_argument for an index past NumPoints().
   DescriptorMatrix UnitRows(const uint32_t* points, size_t count) const;
+  // The 8-bit codes of `points`, in that order, row-major (count x Dimension()): each point's
+  // direction, as UnitRows decodes it (a point never observed: zeros). Throws
+  // std::invalid_argument for an index past NumPoints().
+  std::vector<int8_t> CodeRows(const uint32_t* points, size_t count) const;
 
   // Little-endian: magic "HSCP", version, point count, dimension, each point's scale (float32),
   // then each point's codes (int8, row-major).

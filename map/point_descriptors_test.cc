@@ -98,6 +98,22 @@ TEST(PointDescriptors, UnitRowsFollowTheRequestedOrder) {
   }
 }
 
+// The codes are the rows' directions: normalized, they give UnitRows in the same order.
+TEST(PointDescriptors, CodeRowsAreTheUnitRowsDirections) {
+  const StreamedObservations observations = MakeObservations(30, 16, 5);
+  const PointDescriptors descriptors = Accumulate(observations, 30);
+  const std::vector<uint32_t> some = {7, 3, 7, 29, 0};
+  const DescriptorMatrix rows = descriptors.UnitRows(some.data(), some.size());
+  const std::vector<int8_t> codes = descriptors.CodeRows(some.data(), some.size());
+  ASSERT_EQ(codes.size(), some.size() * 16);
+  for (size_t i = 0; i < some.size(); ++i) {
+    Eigen::VectorXf direction(16);
+    for (int d = 0; d < 16; ++d) direction[d] = codes[i * 16 + d];
+    if (direction.norm() > 0) direction.normalize();
+    EXPECT_TRUE(direction.transpose().isApprox(rows.row(static_cast<Eigen::Index>(i)), 1e-6f)) << i;
+  }
+}
+
 TEST(PointDescriptors, WriteReadRoundTrip) {
   const PointDescriptors descriptors = Accumulate(MakeObservations(40, 32, 9), 40);
   std::stringstream stream;
@@ -144,6 +160,8 @@ TEST(PointDescriptors, RejectsPointsOutOfRangeAndAChangeOfDimension) {
       HasSubstr("dimension 9"));
   const PointDescriptors descriptors = accumulator.Finish();
   EXPECT_THAT(InvalidArgumentMessage([&] { descriptors.UnitRows(&past_the_end, 1); }),
+              HasSubstr("point 5 of 5"));
+  EXPECT_THAT(InvalidArgumentMessage([&] { descriptors.CodeRows(&past_the_end, 1); }),
               HasSubstr("point 5 of 5"));
 }
 

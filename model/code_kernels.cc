@@ -1,0 +1,235 @@
+#include "model/code_kernels.h"
+
+#ifdef __AVX2__
+#include <immintrin.h>
+#endif
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include "util/check.h"
+
+namespace hscloc::code_kernels {
+namespace {
+
+// Queries side by side in a panel: one 32-byte register holds four dimensions of each.
+constexpr int64_t kGroup = 8;
+constexpr int64_t kDimensionsPerStep = 4;
+constexpr int64_t kPanelStepBytes = kGroup * kDimensionsPerStep;
+// Three rows by two panels: six accumulators. Four rows (eight) left GCC spilling some of them
+// to the stack, and ran at two thirds the rate.
+constexpr int kTileRows = 3;
+
+int64_t Steps(int64_t dimension) {
+  return (dimension + kDimensionsPerStep - 1) / kDimensionsPerStep;
+}
+
+// Where query `query`'s code of dimension d lies in its panels.
+int64_t PanelPosition(int64_t dimension, int64_t query, int64_t d) {
+  return query / kGroup * Steps(dimension) * kPanelStepBytes +
+         d / kDimensionsPerStep * kPanelStepBytes + query % kGroup * kDimensionsPerStep +
+         d % kDimensionsPerStep;
+}
+
+int32_t QueryCode(const PackedQueryCodes& queries, int64_t query, int64_t d) {
+  return int32_t{queries.panels[PanelPosition(queries.dimension, query, d)]} - kQueryCodeOffset;
+}
+
+// Four codes of a row from dimension `first` on, as one 32-bit word, zero past the row's end (a
+// row's last step may hold fewer than four).
+int32_t CodeWord(const int8_t* row, int64_t first, int64_t dimension) {
+  int32_t word = 0;
+  std::memcpy(&word, row + first,
+              static_cast<size_t>(std::min(kDimensionsPerStep, dimension - first)));
+  return word;
+}
+
+#ifdef __AVX2__
+
+// One step of a tile: four codes of each of kRows rows, broadcast to every query of a panel, are
+// the signed operand of vpmaddubsw and the panel's offset query codes the unsigned one; vpmaddwd
+// then leaves each query's sum of the four products in its 32-bit lane.
+template <int kRows, int kPanels>
+inline void CodeStep(const int32_t (&words)[kRows], const __m256i (&queries)[kPanels],
+                     __m256i (&sums)[kRows][kPanels]) {
+  const __m256i ones = _mm256_set1_epi16(1);
+  for (int r = 0; r < kRows; ++r) {
+    const __m256i row_codes = _mm256_set1_epi32(words[r]);
+    for (int p = 0; p < kPanels; ++p) {
+      sums[r][p] = _mm256_add_epi32(
+          sums[r][p], _mm256_madd_epi16(_mm256_maddubs_epi16(queries[p], row_codes), ones));
+    }
+  }
+}
+
+// Rows [0, kRows) of a tile against kPanels panels of queries. sums[r][p]: the row's products
+// with panel p's offset query codes.
+template <int kRows, int kPanels>
+void CodeTile(const int8_t* codes, int64_t dimension, const uint8_t* panels, int64_t panel_bytes,
+              __m256i (&sums)[kRows][kPanels]) {
+  for (int r = 0; r < kRows; ++r) {
+    for (int p = 0; p < kPanels; ++p) sums[r][p] = _mm256_setzero_si256();
+  }
+  const auto load_queries = [&](int64_t step, __m256i(&queries)[kPanels]) {
+    for (int p = 0; p < kPanels; ++p) {
+      queries[p] = _mm256_loadu_si256(
+          reinterpret_cast<const __m256i*>(panels + p * panel_bytes + step * kPanelStepBytes));
+    }
+  };
+  const int64_t whole_steps = dimension / kDimensionsPerStep;
+  for (int64_t step = 0; step < whole_steps; ++step) {
+    __m256i queries[kPanels];
+    load_queries(step, queries);
+    int32_t words[kRows];
+    for (int r = 0; r < kRows; ++r) {
+      std::memcpy(&words[r], codes + r * dimension + step * kDimensionsPerStep, sizeof(int32_t));
+    }
+    CodeStep<kRows, kPanels>(words, queries, sums);
+  }
+  if (whole_steps < Steps(dimension)) {
+    __m256i queries[kPanels];
+    load_queries(whole_steps, queries);
+    int32_t words[kRows];
+    for (int r = 0; r < kRows; ++r) {
+      words[r] = CodeWord(codes + r * dimension, whole_steps * kDimensionsPerStep, dimension);
+    }
+    CodeStep<kRows, kPanels>(words, queries, sums);
+  }
+}
+
+template <int kRows, int kPanels>
+void SimilarityTile(const int8_t* codes, const int32_t* row_offsets, const float* row_inverse_norms,
+                    const PackedQueryCodes& queries, int64_t first_query, float* out) {
+  const int64_t panel_bytes = Steps(queries.dimension) * kPanelStepBytes;
+  __m256i sums[kRows][kPanels];
+  CodeTile<kRows, kPanels>(codes, queries.dimension,
+                           queries.panels.data() + first_query / kGroup * panel_bytes, panel_bytes,
+                           sums);
+  for (int p = 0; p < kPanels; ++p) {
+    const int64_t query = first_query + p * kGroup;
+    const __m256 query_inverse_norms = _mm256_loadu_ps(queries.inverse_norms.data() + query);
+    for (int r = 0; r < kRows; ++r) {
+      const __m256 dot =
+          _mm256_cvtepi32_ps(_mm256_sub_epi32(sums[r][p], _mm256_set1_epi32(row_offsets[r])));
+      _mm256_storeu_ps(out + r * queries.padded_count + query,
+                       _mm256_mul_ps(_mm256_mul_ps(dot, _mm256_set1_ps(row_inverse_norms[r])),
+                                     query_inverse_norms));
+    }
+  }
+}
+
+// Tiles of kTileRows rows by up to two panels.
+template <int kPanels>
+void SimilarityRows(const int8_t* codes, const int32_t* row_offsets, const float* row_inverse_norms,
+                    int64_t rows, const PackedQueryCodes& queries, int64_t first_query,
+                    float* out) {
+  const int64_t dimension = queries.dimension;
+  int64_t row = 0;
+  for (; row + kTileRows <= rows; row += kTileRows) {
+    SimilarityTile<kTileRows, kPanels>(codes + row * dimension, row_offsets + row,
+                                       row_inverse_norms + row, queries, first_query,
+                                       out + row * queries.padded_count);
+  }
+  for (; row < rows; ++row) {
+    SimilarityTile<1, kPanels>(codes + row * dimension, row_offsets + row, row_inverse_norms + row,
+                               queries, first_query, out + row * queries.padded_count);
+  }
+}
+
+#endif
+
+}  // namespace
+
+void PortableCodeSimilarities(const int8_t* codes, const float* row_inverse_norms, int64_t rows,
+                              const PackedQueryCodes& queries, float* out) {
+  for (int64_t row = 0; row < rows; ++row) {
+    const int8_t* row_codes = codes + row * queries.dimension;
+    for (int64_t query = 0; query < queries.padded_count; ++query) {
+      int32_t dot = 0;
+      for (int64_t d = 0; d < queries.dimension; ++d) {
+        dot += int32_t{row_codes[d]} * QueryCode(queries, query, d);
+      }
+      out[row * queries.padded_count + query] =
+          static_cast<float>(dot) * row_inverse_norms[row] * queries.inverse_norms[query];
+    }
+  }
+}
+
+int64_t QueryGroup() { return kGroup; }
+
+PackedQueryCodes PackQueryCodes(const float* vectors, int64_t count, int64_t dimension) {
+  THROW_CHECK_MSG(count >= 0 && dimension >= 1, "query codes: {} vectors of dimension {}", count,
+                  dimension);
+  PackedQueryCodes packed;
+  packed.count = count;
+  packed.padded_count = (count + kGroup - 1) / kGroup * kGroup;
+  packed.dimension = dimension;
+  packed.panels.assign(packed.padded_count * Steps(dimension) * kDimensionsPerStep,
+                       static_cast<uint8_t>(kQueryCodeOffset));
+  packed.inverse_norms.assign(packed.padded_count, 0.0f);
+  for (int64_t query = 0; query < count; ++query) {
+    const float* vector = vectors + query * dimension;
+    float largest = 0.0f;
+    for (int64_t d = 0; d < dimension; ++d) largest = std::max(largest, std::abs(vector[d]));
+    if (!(largest > 0.0f) || !std::isfinite(largest)) continue;  // a zero (or broken) vector
+    int64_t squares = 0;
+    for (int64_t d = 0; d < dimension; ++d) {
+      const auto code = static_cast<int>(std::lround(vector[d] / largest * kLargestQueryCode));
+      packed.panels[PanelPosition(dimension, query, d)] =
+          static_cast<uint8_t>(code + kQueryCodeOffset);
+      squares += int64_t{code} * code;
+    }
+    packed.inverse_norms[query] = static_cast<float>(1.0 / std::sqrt(static_cast<double>(squares)));
+  }
+  return packed;
+}
+
+std::vector<int8_t> QueryCodesOf(const PackedQueryCodes& queries, int64_t query) {
+  THROW_CHECK_MSG(query >= 0 && query < queries.count, "query codes: vector {} of {}", query,
+                  queries.count);
+  std::vector<int8_t> codes(queries.dimension);
+  for (int64_t d = 0; d < queries.dimension; ++d) {
+    codes[d] = static_cast<int8_t>(QueryCode(queries, query, d));
+  }
+  return codes;
+}
+
+void InverseCodeNorms(const int8_t* codes, int64_t rows, int64_t dimension, float* out) {
+  for (int64_t row = 0; row < rows; ++row) {
+    int64_t squares = 0;
+    for (int64_t d = 0; d < dimension; ++d) {
+      const int64_t code = codes[row * dimension + d];
+      squares += code * code;
+    }
+    out[row] =
+        squares == 0 ? 0.0f : static_cast<float>(1.0 / std::sqrt(static_cast<double>(squares)));
+  }
+}
+
+void CodeSimilarities(const int8_t* codes, const float* row_inverse_norms, int64_t rows,
+                      const PackedQueryCodes& queries, float* out) {
+#ifdef __AVX2__
+  // The offset query codes add kQueryCodeOffset x the row's code sum to every product.
+  thread_local std::vector<int32_t> row_offsets;
+  row_offsets.resize(rows);
+  for (int64_t row = 0; row < rows; ++row) {
+    int32_t sum = 0;
+    for (int64_t d = 0; d < queries.dimension; ++d) sum += codes[row * queries.dimension + d];
+    row_offsets[row] = kQueryCodeOffset * sum;
+  }
+  // Rows stream through a pair of panels at a time: a tile's codes stay in the core's first cache
+  // while the pair's queries come from the second.
+  int64_t query = 0;
+  for (; query + 2 * kGroup <= queries.padded_count; query += 2 * kGroup) {
+    SimilarityRows<2>(codes, row_offsets.data(), row_inverse_norms, rows, queries, query, out);
+  }
+  if (query < queries.padded_count) {
+    SimilarityRows<1>(codes, row_offsets.data(), row_inverse_norms, rows, queries, query, out);
+  }
+#else
+  PortableCodeSimilarities(codes, row_inverse_norms, rows, queries, out);
+#endif
+}
+
+}  // namespace hscloc::code_kernels
