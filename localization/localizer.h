@@ -101,6 +101,10 @@ enum class Matcher {
 Matcher ParseMatcher(const std::string& name);
 std::string MatcherName(Matcher matcher);
 
+// The keypoints the last round's shortlist counts its images on
+// (LocalizerOptions::nearest_point_shortlist): about a quarter of an aachen night query's.
+inline constexpr int64_t kNearestPointSampleKeypoints = 128;
+
 struct LocalizerOptions {
   Matcher matcher = Matcher::kNetwork;
   // Retrieved database images, each a pose candidate (the paper: 10), per retrieval round.
@@ -122,6 +126,11 @@ struct LocalizerOptions {
   // retrieves 50 images for Aachen's night where this map's right image can rank past 100
   // (docs/decisions.md). Needs a map with point descriptors and global retrieval; 0: never.
   int nearest_point_candidates = 200;
+  // The last round counts every image's matches on a sample of the query's keypoints first, and
+  // all of them for this many images with the most: a night query's right image is among them
+  // (docs/decisions.md), and a count is about linear in keypoints and in points. 0: every image
+  // on every keypoint.
+  int nearest_point_shortlist = 40;
   // Keypoints past this many are not matched: the network and every later stage see this many of
   // the query's, evenly spaced in its order (a detector's order by score is sampled across its
   // scores), while retrieval's global descriptor still pools them all. The network's work grows
@@ -292,9 +301,19 @@ class Localizer {
                                     const LocalizerOptions& options) const;
   // About how many matches MatchNearestPoints finds in each of `images`, the union of their
   // points matched once in 8-bit integers (CountNearestRowMatches).
-  std::vector<int> CountNearestPointMatches(const LocalizationQuery& query,
+  std::vector<int> CountNearestPointMatches(const DescriptorMatrix& descriptors,
                                             const std::vector<LocalizationCandidate>& images,
                                             const LocalizerOptions& options) const;
+  // `images` by their CountNearestPointMatches, most first (ties in their order).
+  void RankByNearestPointMatches(const DescriptorMatrix& descriptors,
+                                 const LocalizerOptions& options,
+                                 std::vector<LocalizationCandidate>& images) const;
+  // The nearest_point_shortlist of `images` with the most matches of kNearestPointSampleKeypoints
+  // of the query's keypoints, evenly spaced, in the order of `images`; all of them where they are
+  // no more, or the query has no more keypoints than the sample.
+  std::vector<LocalizationCandidate> ShortlistForNearestPoints(
+      const DescriptorMatrix& descriptors, std::vector<LocalizationCandidate> images,
+      const LocalizerOptions& options) const;
   // Mutual nearest neighbours with the ratio test between unit query rows and the mean
   // descriptors of the points image `image_index` sees.
   CandidateMatches MatchNearestPoints(const DescriptorMatrix& unit_query, uint32_t image_index,

@@ -2,6 +2,7 @@
 // left a query without a pose, the global ranking's first images matched against the mean
 // descriptors of the points they see (map/point_descriptors.h).
 #include <algorithm>
+#include <numeric>
 
 #include "localization/localizer.h"
 #include "localization/localizer_evaluation.h"
@@ -26,7 +27,7 @@ CandidateMatches Localizer::MatchNearestPoints(const DescriptorMatrix& unit_quer
 }
 
 std::vector<int> Localizer::CountNearestPointMatches(
-    const LocalizationQuery& query, const std::vector<LocalizationCandidate>& images,
+    const DescriptorMatrix& descriptors, const std::vector<LocalizationCandidate>& images,
     const LocalizerOptions& options) const {
   // Images near one another see many of the same points: their union is matched once, in 8-bit
   // integers (CountNearestRowMatches). The counts are MatchNearestPoints' on the queries at 7 bits
@@ -51,27 +52,59 @@ std::vector<int> Localizer::CountNearestPointMatches(
     std::sort(rows_of_images[k].begin(), rows_of_images[k].end());
   }
   // Read a block at a time: the union of 200 images' points is 50 MB of codes on aachen.
-  const PointDescriptors& descriptors = map_->point_descriptors();
+  const PointDescriptors& point_descriptors = map_->point_descriptors();
   return CountNearestRowMatches(
-      UnitRows(query.descriptors), static_cast<int64_t>(points.size()),
+      UnitRows(descriptors), static_cast<int64_t>(points.size()),
       [&](int64_t first, int64_t count) {
-        return descriptors.CodeRows(points.data() + first, static_cast<size_t>(count));
+        return point_descriptors.CodeRows(points.data() + first, static_cast<size_t>(count));
       },
       rows_of_images, options.nearest_neighbor, ComputeThreads());
+}
+
+void Localizer::RankByNearestPointMatches(const DescriptorMatrix& descriptors,
+                                          const LocalizerOptions& options,
+                                          std::vector<LocalizationCandidate>& images) const {
+  const std::vector<int> counts = CountNearestPointMatches(descriptors, images, options);
+  for (size_t k = 0; k < images.size(); ++k) images[k].num_matches = counts[k];
+  std::stable_sort(images.begin(), images.end(),
+                   [](const LocalizationCandidate& a, const LocalizationCandidate& b) {
+                     return a.num_matches > b.num_matches;
+                   });
+}
+
+std::vector<LocalizationCandidate> Localizer::ShortlistForNearestPoints(
+    const DescriptorMatrix& descriptors, std::vector<LocalizationCandidate> images,
+    const LocalizerOptions& options) const {
+  const int64_t sample_size = kNearestPointSampleKeypoints;
+  const size_t shortlist = static_cast<size_t>(options.nearest_point_shortlist);
+  if (shortlist == 0 || images.size() <= shortlist || descriptors.rows() <= sample_size) {
+    return images;
+  }
+  DescriptorMatrix sample(sample_size, descriptors.cols());
+  for (int64_t i = 0; i < sample_size; ++i) {
+    sample.row(i) = descriptors.row(i * descriptors.rows() / sample_size);
+  }
+  const std::vector<int> counts = CountNearestPointMatches(sample, images, options);
+  std::vector<size_t> order(images.size());
+  std::iota(order.begin(), order.end(), size_t{0});
+  std::stable_sort(order.begin(), order.end(),
+                   [&](size_t a, size_t b) { return counts[a] > counts[b]; });
+  // In the global ranking's order, so that equal full counts rank as without the shortlist.
+  order.resize(shortlist);
+  std::sort(order.begin(), order.end());
+  std::vector<LocalizationCandidate> shortlisted;
+  for (const size_t k : order) shortlisted.push_back(images[k]);
+  return shortlisted;
 }
 
 std::vector<LocalizationCandidate> Localizer::RetrieveByNearestPoints(
     const LocalizationQuery& query, const LocalizerOptions& options,
     const Eigen::VectorXf& global_descriptor) const {
   // Earlier rounds' images are ranked again: the network may have missed its right image.
-  std::vector<LocalizationCandidate> ranked =
-      Retrieve(global_descriptor, options.nearest_point_candidates, {});
-  const std::vector<int> counts = CountNearestPointMatches(query, ranked, options);
-  for (size_t k = 0; k < ranked.size(); ++k) ranked[k].num_matches = counts[k];
-  std::stable_sort(ranked.begin(), ranked.end(),
-                   [](const LocalizationCandidate& a, const LocalizationCandidate& b) {
-                     return a.num_matches > b.num_matches;
-                   });
+  std::vector<LocalizationCandidate> ranked = ShortlistForNearestPoints(
+      query.descriptors, Retrieve(global_descriptor, options.nearest_point_candidates, {}),
+      options);
+  RankByNearestPointMatches(query.descriptors, options, ranked);
   std::vector<LocalizationCandidate> candidates;
   for (LocalizationCandidate& candidate : ranked) {
     if (static_cast<int>(candidates.size()) == options.top_k ||

@@ -78,6 +78,10 @@ void LocalizerOptions::Check() const {
   THROW_CHECK_MSG(nearest_point_candidates >= 0,
                   "LocalizerOptions.nearest_point_candidates = {} (0: never)",
                   nearest_point_candidates);
+  THROW_CHECK_MSG(
+      nearest_point_shortlist >= 0,
+      "LocalizerOptions.nearest_point_shortlist = {} (0: every image on every keypoint)",
+      nearest_point_shortlist);
   THROW_CHECK_MSG(max_matched_keypoints == 0 || max_matched_keypoints >= 4,
                   "LocalizerOptions.max_matched_keypoints = {} (0: every keypoint; a pose needs 4)",
                   max_matched_keypoints);

@@ -434,6 +434,15 @@ TEST_F(SmallCityLocalizerTest, TheGlobalRankingsNextImagesFollowWhereEveryEarlie
   EXPECT_GE(recovered, 3) << "the blend must mislead the first round for the test to mean anything";
 }
 
+// A localizer whose network is untrained (its labels random): it places nothing, so every query
+// reaches the last round.
+Localizer WithUntrainedNetwork(const std::shared_ptr<const LocalizationMap>& map) {
+  return Localizer(map, std::make_shared<const Network>(
+                            NetworkShape::ForTree(map->descriptor_dim(), map->label_tree(),
+                                                  static_cast<int>(map->scene().NumImages())),
+                            NetworkOptions(), /*seed=*/7));
+}
+
 // Where the network places nothing (here an untrained one, whose labels are random), the last
 // round matches the global ranking's images against the mean descriptors of the points they see,
 // and poses the top_k with the most matches.
@@ -441,11 +450,7 @@ TEST_F(SmallCityLocalizerTest, PointDescriptorsPlaceQueriesTheNetworkCannot) {
   const auto map = LocalizationMap::Load(localizer().map().dir());
   ASSERT_FALSE(map->point_descriptors().empty()) << "the map builder writes them";
   ASSERT_EQ(map->point_descriptors().NumPoints(), map->scene().NumPoints());
-  const auto untrained = std::make_shared<const Network>(
-      NetworkShape::ForTree(map->descriptor_dim(), map->label_tree(),
-                            static_cast<int>(map->scene().NumImages())),
-      NetworkOptions(), /*seed=*/7);
-  const Localizer localizer(map, untrained);
+  const Localizer localizer = WithUntrainedNetwork(map);
   const LocalizerOptions options;
   LocalizerOptions without = options;
   without.nearest_point_candidates = 0;
@@ -482,6 +487,39 @@ TEST_F(SmallCityLocalizerTest, PointDescriptorsPlaceQueriesTheNetworkCannot) {
     placed += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], result);
   }
   EXPECT_GE(placed, static_cast<int>(count) - 1);
+}
+
+// The last round's shortlist (the images with the most matches of a sample of the keypoints) holds
+// the images that counting every image on every keypoint poses: the same candidates in the same
+// order, the same pose.
+TEST_F(SmallCityLocalizerTest, TheLastRoundsShortlistPosesWhatCountingEveryImagePoses) {
+  const auto map = LocalizationMap::Load(localizer().map().dir());
+  const Localizer localizer = WithUntrainedNetwork(map);
+  const LocalizerOptions shortlisted;
+  LocalizerOptions every_image = shortlisted;
+  every_image.nearest_point_shortlist = 0;
+  ASSERT_GT(map->scene().NumImages(), static_cast<size_t>(shortlisted.nearest_point_shortlist))
+      << "the shortlist must leave images out for the test to mean anything";
+  const QuerySet& set = Set("night");
+  const size_t count = std::min<size_t>(set.queries.size(), 6);
+  int compared = 0;
+  for (size_t q = 0; q < count; ++q) {
+    SCOPED_TRACE(set.queries[q].name);
+    ASSERT_GT(set.queries[q].descriptors.rows(), kNearestPointSampleKeypoints);
+    const PoseResult expected = localizer.Localize(set.queries[q], every_image);
+    const PoseResult result = localizer.Localize(set.queries[q], shortlisted);
+    ASSERT_EQ(result.candidates.size(), expected.candidates.size());
+    for (size_t k = 0; k < result.candidates.size(); ++k) {
+      EXPECT_EQ(result.candidates[k].image_index, expected.candidates[k].image_index) << k;
+      EXPECT_EQ(result.candidates[k].source, expected.candidates[k].source) << k;
+      compared += result.candidates[k].source == CandidateSource::kNearestPoints;
+    }
+    EXPECT_EQ(result.success, expected.success);
+    EXPECT_TRUE(result.cam_from_world.rotation.isApprox(expected.cam_from_world.rotation, 1e-9));
+    EXPECT_TRUE(
+        result.cam_from_world.translation.isApprox(expected.cam_from_world.translation, 1e-9));
+  }
+  EXPECT_GT(compared, 10) << "the last round must run for the test to mean anything";
 }
 
 }  // namespace

@@ -159,8 +159,9 @@ void PortableCodeSimilarities(const int8_t* codes, const float* row_inverse_norm
 int64_t QueryGroup() { return kGroup; }
 
 PackedQueryCodes PackQueryCodes(const float* vectors, int64_t count, int64_t dimension) {
-  THROW_CHECK_MSG(count >= 0 && dimension >= 1, "query codes: {} vectors of dimension {}", count,
-                  dimension);
+  THROW_CHECK_MSG(count >= 0 && dimension >= 1 && dimension <= kMaxDimension,
+                  "query codes: {} vectors of dimension {} (1 to {})", count, dimension,
+                  kMaxDimension);
   PackedQueryCodes packed;
   packed.count = count;
   packed.padded_count = (count + kGroup - 1) / kGroup * kGroup;
@@ -197,9 +198,10 @@ std::vector<int8_t> QueryCodesOf(const PackedQueryCodes& queries, int64_t query)
 
 void InverseCodeNorms(const int8_t* codes, int64_t rows, int64_t dimension, float* out) {
   for (int64_t row = 0; row < rows; ++row) {
-    int64_t squares = 0;
+    // 32-bit sums, which the compiler vectorizes: within range up to kMaxDimension.
+    int32_t squares = 0;
     for (int64_t d = 0; d < dimension; ++d) {
-      const int64_t code = codes[row * dimension + d];
+      const int32_t code = codes[row * dimension + d];
       squares += code * code;
     }
     out[row] =
@@ -218,14 +220,23 @@ void CodeSimilarities(const int8_t* codes, const float* row_inverse_norms, int64
     for (int64_t d = 0; d < queries.dimension; ++d) sum += codes[row * queries.dimension + d];
     row_offsets[row] = kQueryCodeOffset * sum;
   }
-  // Rows stream through a pair of panels at a time: a tile's codes stay in the core's first cache
-  // while the pair's queries come from the second.
-  int64_t query = 0;
-  for (; query + 2 * kGroup <= queries.padded_count; query += 2 * kGroup) {
-    SimilarityRows<2>(codes, row_offsets.data(), row_inverse_norms, rows, queries, query, out);
-  }
-  if (query < queries.padded_count) {
-    SimilarityRows<1>(codes, row_offsets.data(), row_inverse_norms, rows, queries, query, out);
+  // A chunk of rows at a time, its codes kept in the core's first cache while every pair of
+  // panels passes over them from the second: streamed whole for each pair, the rows of a large
+  // block came from memory once per pair.
+  constexpr int64_t kChunkRows = 32 * kTileRows;
+  for (int64_t first = 0; first < rows; first += kChunkRows) {
+    const int64_t count = std::min(kChunkRows, rows - first);
+    const int8_t* chunk = codes + first * queries.dimension;
+    float* chunk_out = out + first * queries.padded_count;
+    int64_t query = 0;
+    for (; query + 2 * kGroup <= queries.padded_count; query += 2 * kGroup) {
+      SimilarityRows<2>(chunk, row_offsets.data() + first, row_inverse_norms + first, count,
+                        queries, query, chunk_out);
+    }
+    if (query < queries.padded_count) {
+      SimilarityRows<1>(chunk, row_offsets.data() + first, row_inverse_norms + first, count,
+                        queries, query, chunk_out);
+    }
   }
 #else
   PortableCodeSimilarities(codes, row_inverse_norms, rows, queries, out);

@@ -19,6 +19,8 @@ namespace hscloc::code_kernels {
 // must sum within a 16-bit integer: 2 x 127 x 127 <= 32767.
 inline constexpr int kLargestQueryCode = 63;
 inline constexpr int kQueryCodeOffset = 64;
+// The products and norms are summed in 32 bits: 127 x 127 x 65,536 < 2^31.
+inline constexpr int64_t kMaxDimension = 65536;
 
 // Query vectors at 7 bits for CodeSimilarities: each vector's values rounded to integers in
 // [-kLargestQueryCode, kLargestQueryCode] at its own scale (its largest magnitude maps to the
@@ -34,14 +36,14 @@ struct PackedQueryCodes {
 };
 int64_t QueryGroup();
 
-// Throws std::invalid_argument for a negative count or a dimension below 1.
+// Throws std::invalid_argument for a negative count or a dimension outside [1, kMaxDimension].
 PackedQueryCodes PackQueryCodes(const float* vectors, int64_t count, int64_t dimension);
 
 // The codes of one query vector as PackQueryCodes rounds them, in dimension order.
 std::vector<int8_t> QueryCodesOf(const PackedQueryCodes& queries, int64_t query);
 
-// 1 / the norm of each of `rows` code rows of `dimension` codes (0 for a zero row), from the exact
-// integer sum of squares.
+// 1 / the norm of each of `rows` code rows of `dimension` (up to kMaxDimension) codes (0 for a
+// zero row), from the exact integer sum of squares.
 void InverseCodeNorms(const int8_t* codes, int64_t rows, int64_t dimension, float* out);
 
 // out[r * queries.padded_count + q] = the cosine between code row r (codes[r * dimension ..],

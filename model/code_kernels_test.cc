@@ -65,6 +65,9 @@ TEST(CodeKernelsTest, QueryCodesRoundEachVectorAtItsOwnScale) {
     EXPECT_GT(Cosine(as_floats.data(), vector, dimension), 0.999);
   }
   EXPECT_THROW(code_kernels::PackQueryCodes(vectors.data(), 1, 0), std::invalid_argument);
+  const std::vector<float> too_long(code_kernels::kMaxDimension + 1, 1.0f);
+  EXPECT_THROW(code_kernels::PackQueryCodes(too_long.data(), 1, code_kernels::kMaxDimension + 1),
+               std::invalid_argument);
   EXPECT_THROW(code_kernels::QueryCodesOf(packed, 5), std::invalid_argument);
 }
 

@@ -152,6 +152,13 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   command
+      ->add_option("--nearest-point-shortlist", options.nearest_point_shortlist,
+                   "hsc: the last round counts its images' matches on a sample of the query's "
+                   "keypoints, then on all of them for this many with the most (0: every image "
+                   "on every keypoint)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  command
       ->add_option("--max-matched-keypoints", options.max_matched_keypoints,
                    "Keypoints matched at most, evenly spaced in the query's order; retrieval's "
                    "global descriptor still pools them all (0: every keypoint)")
