@@ -131,6 +131,11 @@ struct LocalizerOptions {
   // (docs/decisions.md), and a count is about linear in keypoints and in points. 0: every image
   // on every keypoint.
   int nearest_point_shortlist = 40;
+  // Where the last round's nearest_point_candidates images give no pose either, it ranks the
+  // global ranking's next images up to this one the same way, once: at night the right image of
+  // an aachen query can rank past the 600th (docs/decisions.md), and a query no earlier pass
+  // placed is the rare one. 0, or no more than nearest_point_candidates: no second pass.
+  int nearest_point_widened_candidates = 1000;
   // Keypoints past this many are not matched: the network and every later stage see this many of
   // the query's, evenly spaced in its order (a detector's order by score is sampled across its
   // scores), while retrieval's global descriptor still pools them all. The network's work grows
@@ -290,10 +295,16 @@ class Localizer {
   void EvaluateNearestPointRound(const LocalizationQuery& query, const LocalizerOptions& options,
                                  const Eigen::VectorXf& global_descriptor,
                                  Evaluation& evaluation) const;
+  // One pass of the last round over the global ranking's images [first_rank, end_rank).
+  void EvaluateNearestPointRanks(const LocalizationQuery& query, const LocalizerOptions& options,
+                                 const Eigen::VectorXf& global_descriptor, int first_rank,
+                                 int end_rank, Evaluation& evaluation) const;
   bool UsesNearestPoints(const LocalizerOptions& options) const;
+  // The top_k of the global ranking's images [first_rank, end_rank) with the most nearest-point
+  // matches, and at least pose.min_inliers of them.
   std::vector<LocalizationCandidate> RetrieveByNearestPoints(
       const LocalizationQuery& query, const LocalizerOptions& options,
-      const Eigen::VectorXf& global_descriptor) const;
+      const Eigen::VectorXf& global_descriptor, int first_rank, int end_rank) const;
   // Localize on max_matched_keypoints of the query's keypoints
   // (LocalizerOptions::max_matched_keypoints), the matches reported by the query's own keypoint
   // rows.

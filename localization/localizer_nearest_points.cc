@@ -1,6 +1,7 @@
 // The localizer's last round (LocalizerOptions::nearest_point_candidates): where the network has
 // left a query without a pose, the global ranking's first images matched against the mean
-// descriptors of the points they see (map/point_descriptors.h).
+// descriptors of the points they see (map/point_descriptors.h), and where they give none either,
+// the next ones (nearest_point_widened_candidates).
 #include <algorithm>
 #include <numeric>
 
@@ -99,11 +100,12 @@ std::vector<LocalizationCandidate> Localizer::ShortlistForNearestPoints(
 
 std::vector<LocalizationCandidate> Localizer::RetrieveByNearestPoints(
     const LocalizationQuery& query, const LocalizerOptions& options,
-    const Eigen::VectorXf& global_descriptor) const {
+    const Eigen::VectorXf& global_descriptor, int first_rank, int end_rank) const {
   // Earlier rounds' images are ranked again: the network may have missed its right image.
-  std::vector<LocalizationCandidate> ranked = ShortlistForNearestPoints(
-      query.descriptors, Retrieve(global_descriptor, options.nearest_point_candidates, {}),
-      options);
+  std::vector<LocalizationCandidate> images = Retrieve(global_descriptor, end_rank, {});
+  images.erase(images.begin(), images.begin() + std::min<size_t>(first_rank, images.size()));
+  std::vector<LocalizationCandidate> ranked =
+      ShortlistForNearestPoints(query.descriptors, std::move(images), options);
   RankByNearestPointMatches(query.descriptors, options, ranked);
   std::vector<LocalizationCandidate> candidates;
   for (LocalizationCandidate& candidate : ranked) {
@@ -122,16 +124,27 @@ void Localizer::EvaluateNearestPointRound(const LocalizationQuery& query,
                                           const LocalizerOptions& options,
                                           const Eigen::VectorXf& global_descriptor,
                                           Evaluation& evaluation) const {
-  PoseResult& result = evaluation.result;
-  if (!UsesNearestPoints(options) || global_descriptor.size() == 0 ||
-      Choose(result.candidates) >= 0) {
-    return;
+  if (!UsesNearestPoints(options) || global_descriptor.size() == 0) return;
+  // The global ranking's first images, then, where they give no pose either, the next ones.
+  int first_rank = 0;
+  for (const int end_rank :
+       {options.nearest_point_candidates, options.nearest_point_widened_candidates}) {
+    if (Choose(evaluation.result.candidates) >= 0 || end_rank <= first_rank) return;
+    EvaluateNearestPointRanks(query, options, global_descriptor, first_rank, end_rank, evaluation);
+    first_rank = end_rank;
   }
+}
+
+void Localizer::EvaluateNearestPointRanks(const LocalizationQuery& query,
+                                          const LocalizerOptions& options,
+                                          const Eigen::VectorXf& global_descriptor, int first_rank,
+                                          int end_rank, Evaluation& evaluation) const {
+  PoseResult& result = evaluation.result;
   const size_t first = result.candidates.size();
   {
     ScopedTimer timer(&result.timings.retrieval_ms);
     std::vector<LocalizationCandidate> ranked =
-        RetrieveByNearestPoints(query, options, global_descriptor);
+        RetrieveByNearestPoints(query, options, global_descriptor, first_rank, end_rank);
     result.candidates.insert(result.candidates.end(), ranked.begin(), ranked.end());
   }
   if (result.candidates.size() == first) return;

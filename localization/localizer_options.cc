@@ -78,6 +78,9 @@ void LocalizerOptions::Check() const {
   THROW_CHECK_MSG(nearest_point_candidates >= 0,
                   "LocalizerOptions.nearest_point_candidates = {} (0: never)",
                   nearest_point_candidates);
+  THROW_CHECK_MSG(nearest_point_widened_candidates >= 0,
+                  "LocalizerOptions.nearest_point_widened_candidates = {} (0: no second pass)",
+                  nearest_point_widened_candidates);
   THROW_CHECK_MSG(
       nearest_point_shortlist >= 0,
       "LocalizerOptions.nearest_point_shortlist = {} (0: every image on every keypoint)",

@@ -522,5 +522,56 @@ TEST_F(SmallCityLocalizerTest, TheLastRoundsShortlistPosesWhatCountingEveryImage
   EXPECT_GT(compared, 10) << "the last round must run for the test to mean anything";
 }
 
+// Where the last round's first images give no pose, its second pass ranks the global ranking's
+// next ones, and only then: a query placed by the first pass is left as it was. Each query is
+// also sent with another query's global descriptor, whose first images show another street.
+TEST_F(SmallCityLocalizerTest, TheLastRoundWidensOnlyWhereItsFirstImagesGiveNoPose) {
+  const auto map = LocalizationMap::Load(localizer().map().dir());
+  const Localizer localizer = WithUntrainedNetwork(map);
+  LocalizerOptions narrow;
+  narrow.nearest_point_candidates = 2;
+  narrow.nearest_point_widened_candidates = 0;
+  LocalizerOptions widened = narrow;
+  widened.nearest_point_widened_candidates = 1000;
+  ASSERT_LE(map->scene().NumImages(), 1000u) << "the second pass ranks every other image";
+  const QuerySet& set = Set("day");
+  const size_t count = std::min<size_t>(set.queries.size(), 6);
+  int recovered = 0;
+  int kept = 0;
+  for (size_t q = 0; q < count; ++q) {
+    for (const bool misled : {false, true}) {
+      SCOPED_TRACE(set.queries[q].name + (misled ? ", misled" : ""));
+      LocalizationQuery query = set.queries[q];
+      if (misled) {
+        query.global_descriptor =
+            map->vlad()->Encode(set.queries[(q + count / 2) % count].descriptors);
+      }
+      const PoseResult first_pass = localizer.Localize(query, narrow);
+      const PoseResult result = localizer.Localize(query, widened);
+      ASSERT_GE(result.candidates.size(), first_pass.candidates.size());
+      for (size_t k = 0; k < first_pass.candidates.size(); ++k) {
+        EXPECT_EQ(result.candidates[k].image_index, first_pass.candidates[k].image_index) << k;
+      }
+      if (first_pass.success) {
+        EXPECT_EQ(result.candidates.size(), first_pass.candidates.size());
+        kept += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], first_pass);
+        continue;
+      }
+      // The second pass's images come from past the first pass's ranks.
+      const std::vector<RetrievalHit> first_ranks =
+          map->global_index().Search(*query.global_descriptor, 2);
+      for (size_t k = first_pass.candidates.size(); k < result.candidates.size(); ++k) {
+        EXPECT_EQ(result.candidates[k].source, CandidateSource::kNearestPoints) << k;
+        for (const RetrievalHit& hit : first_ranks) {
+          EXPECT_NE(result.candidates[k].image_index, hit.image_index) << k;
+        }
+      }
+      recovered += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], result);
+    }
+  }
+  EXPECT_GE(recovered, 3) << "the first pass must miss queries that the second places";
+  EXPECT_GE(kept, 3) << "the first pass must place queries for the test to mean anything";
+}
+
 }  // namespace
 }  // namespace hscloc

@@ -152,6 +152,13 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   command
+      ->add_option("--nearest-point-widened-candidates", options.nearest_point_widened_candidates,
+                   "hsc: where the last round's images give no pose either, the global ranking's "
+                   "next images up to this one are ranked and posed the same way (0: no second "
+                   "pass)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  command
       ->add_option("--nearest-point-shortlist", options.nearest_point_shortlist,
                    "hsc: the last round counts its images' matches on a sample of the query's "
                    "keypoints, then on all of them for this many with the most (0: every image "
