@@ -303,6 +303,15 @@ TEST_F(CliTest, BadInputsFailWithAClearMessage) {
   EXPECT_THAT(ReadText(temp_ / "train.log"),
               HasSubstr("--output shortcut scores points at the descriptor's width"));
 
+  // The last round's options reach the server too, checked as the batch's are.
+  EXPECT_NE(RunHscloc(fmt::format("serve --map {} --bind tcp://127.0.0.1:0 "
+                                  "--nearest-point-widened-candidates -1",
+                                  Map()),
+                      temp_ / "serve_options.log"),
+            0);
+  EXPECT_THAT(ReadText(temp_ / "serve_options.log"),
+              HasSubstr("--nearest-point-widened-candidates: Value -1 not in range"));
+
   // A folder that is not a real set, a bank that is not one, a real appearance without a bank.
   fs::create_directories(Temp("not-a-set"));
   EXPECT_NE(RunHscloc(fmt::format("bank --set {} --out {}", Temp("not-a-set"), Temp("b.bank")),

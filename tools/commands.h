@@ -8,6 +8,8 @@ namespace hscloc {
 
 using CommandRunner = std::function<int()>;
 
+struct LocalizerOptions;
+
 void AddSynthCommand(CLI::App& app, CommandRunner& run);
 void AddExtractCommand(CLI::App& app, CommandRunner& run);
 void AddTriangulateCommand(CLI::App& app, CommandRunner& run);
@@ -21,5 +23,8 @@ void AddPipelineCommand(CLI::App& app, CommandRunner& run);
 void AddServeCommand(CLI::App& app, CommandRunner& run);
 void AddKeygenCommand(CLI::App& app, CommandRunner& run);
 void AddDemoCommand(CLI::App& app, CommandRunner& run);
+
+// The options of the localizer's last round (nearest_point_*), for every command that localizes.
+void AddLastRoundOptions(CLI::App& command, LocalizerOptions& options);
 
 }  // namespace hscloc

@@ -206,6 +206,7 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
                    "pools them all (0: every keypoint)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  AddLastRoundOptions(*command, options.localizer);
   command
       ->add_option("--matcher", arguments->matcher,
                    "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
