@@ -93,27 +93,28 @@ int RunLocalize(LocalizeArguments& arguments) {
 }  // namespace
 
 void AddLastRoundOptions(CLI::App& command, LocalizerOptions& options) {
-  command
-      .add_option("--nearest-point-candidates", options.nearest_point_candidates,
-                  "hsc: where no round found a pose, the global ranking's first images matched "
-                  "by nearest neighbour against their points' mean descriptors, the --top-k with "
-                  "the most matches posed (needs a map built with point descriptors; 0: never)")
-      ->check(CLI::NonNegativeNumber)
-      ->capture_default_str();
-  command
-      .add_option("--nearest-point-widened-candidates", options.nearest_point_widened_candidates,
-                  "hsc: where the last round's images give no pose either, the global ranking's "
-                  "next images up to this one are ranked and posed the same way (0: no second "
-                  "pass)")
-      ->check(CLI::NonNegativeNumber)
-      ->capture_default_str();
-  command
-      .add_option("--nearest-point-shortlist", options.nearest_point_shortlist,
-                  "hsc: the last round counts its images' matches on a sample of the query's "
-                  "keypoints, then on all of them for this many with the most (0: every image "
-                  "on every keypoint)")
-      ->check(CLI::NonNegativeNumber)
-      ->capture_default_str();
+  struct CountOption {
+    const char* name;
+    int* value;
+    const char* description;
+  };
+  const CountOption last_round[] = {
+      {"--nearest-point-candidates", &options.nearest_point_candidates,
+       "hsc: where no round found a pose, the global ranking's first images matched by nearest "
+       "neighbour against their points' mean descriptors, the --top-k with the most matches posed "
+       "(needs a map built with point descriptors; 0: never)"},
+      {"--nearest-point-widened-candidates", &options.nearest_point_widened_candidates,
+       "hsc: where the last round's images give no pose either, the global ranking's next images "
+       "up to this one are ranked and posed the same way (0: no second pass)"},
+      {"--nearest-point-shortlist", &options.nearest_point_shortlist,
+       "hsc: the last round counts its images' matches on a sample of the query's keypoints, then "
+       "on all of them for this many with the most (0: every image on every keypoint)"},
+  };
+  for (const CountOption& option : last_round) {
+    command.add_option(option.name, *option.value, option.description)
+        ->check(CLI::NonNegativeNumber)
+        ->capture_default_str();
+  }
 }
 
 void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
