@@ -419,6 +419,8 @@ void LabelTree::BuildNodesFromLabels() {
     current_first_node = next_first_node;
     current.swap(next);
   }
+  nodes_per_level_.assign(levels_ + 1, 0);
+  for (const uint8_t level : node_level_) ++nodes_per_level_[level];
 }
 
 std::vector<Eigen::Vector3d> LabelTree::NodeCenters(

@@ -57,6 +57,8 @@ class LabelTree {
   // point.
   size_t NumNodes() const { return node_level_.size(); }
   int NodeLevel(uint32_t node) const { return node_level_[node]; }
+  // How many nodes each level holds, the root's first: levels() + 1 counts.
+  const std::vector<int64_t>& NodesPerLevel() const { return nodes_per_level_; }
   uint32_t FirstChild(uint32_t node) const { return first_child_[node]; }
   uint32_t NumChildren(uint32_t node) const { return num_children_[node]; }
   // The point of a leaf node; -1 for inner nodes.
@@ -84,6 +86,7 @@ class LabelTree {
   int branching_ = 0;
   std::vector<Label> labels_;  // point-major: labels_[point * levels + level]
   std::vector<uint8_t> node_level_;
+  std::vector<int64_t> nodes_per_level_;
   std::vector<uint32_t> first_child_;
   std::vector<uint32_t> num_children_;
   std::vector<int64_t> leaf_point_;        // per node; -1 for inner nodes

@@ -71,7 +71,9 @@ void ExpectValidTree(const LabelTree& tree, const std::vector<Eigen::Vector3d>& 
   }
 
   size_t num_leaves = 0;
+  std::vector<int64_t> nodes_per_level(tree.levels() + 1, 0);
   for (uint32_t node = 0; node < tree.NumNodes(); ++node) {
+    ++nodes_per_level[tree.NodeLevel(node)];
     ASSERT_LE(tree.NumChildren(node), static_cast<uint32_t>(options.branching));
     for (uint32_t c = 0; c < tree.NumChildren(node); ++c) {
       ASSERT_EQ(tree.NodeLevel(tree.FirstChild(node) + c), tree.NodeLevel(node) + 1);
@@ -92,6 +94,7 @@ void ExpectValidTree(const LabelTree& tree, const std::vector<Eigen::Vector3d>& 
     }
   }
   EXPECT_EQ(num_leaves, points.size());
+  EXPECT_EQ(tree.NodesPerLevel(), nodes_per_level);
 }
 
 // A label path that leaves an inner node through a child it does not have.

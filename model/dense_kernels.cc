@@ -97,8 +97,11 @@ constexpr int kTileRows = kLanes >= 16 ? 12 : 6;
 template <int rows>
 void ProductTile(const float* in, int64_t in_features, const float* panel, const float* panel_bias,
                  int64_t columns, bool elu, float* out, int64_t out_stride) {
+  // Every loop over the tile's rows is unrolled: a loop left rolled makes the compiler keep the
+  // accumulators in memory, zeroed by a call to memset on every tile.
   Packet low[rows];
   Packet high[rows];
+#pragma GCC unroll 16
   for (int r = 0; r < rows; ++r) low[r] = high[r] = ei::pset1<Packet>(0);
   for (int64_t k = 0; k < in_features; ++k) {
     const Packet weight_low = ei::ploadu<Packet>(panel + k * kPanelWidth);
@@ -112,6 +115,7 @@ void ProductTile(const float* in, int64_t in_features, const float* panel, const
   const Packet bias_low = ei::pload<Packet>(panel_bias);
   const Packet bias_high = ei::pload<Packet>(panel_bias + kLanes);
   alignas(64) float tail[kPanelWidth];
+#pragma GCC unroll 16
   for (int r = 0; r < rows; ++r) {
     Packet first = ei::padd(low[r], bias_low);
     Packet second = ei::padd(high[r], bias_high);

@@ -83,12 +83,8 @@ torch::Tensor NormalizeRows(const torch::Tensor& rows) {
 }
 
 NetworkShape NetworkShape::ForTree(int descriptor_dim, const LabelTree& tree, int num_images) {
-  NetworkShape shape{descriptor_dim, tree.levels(), tree.branching(), num_images, {}, {}};
-  shape.nodes_per_depth.assign(tree.levels() + 1, 0);
-  for (uint32_t node = 0; node < tree.NumNodes(); ++node) {
-    ++shape.nodes_per_depth.at(tree.NodeLevel(node));
-  }
-  return shape;
+  return NetworkShape{descriptor_dim, tree.levels(),        tree.branching(),
+                      num_images,     tree.NodesPerLevel(), {}};
 }
 
 int64_t NetworkShape::FirstNodeOfDepth(int depth) const {
