@@ -83,8 +83,9 @@ torch::Tensor NormalizeRows(const torch::Tensor& rows) {
 }
 
 NetworkShape NetworkShape::ForTree(int descriptor_dim, const LabelTree& tree, int num_images) {
-  return NetworkShape{descriptor_dim, tree.levels(),        tree.branching(),
-                      num_images,     tree.NodesPerLevel(), {}};
+  NetworkShape shape{descriptor_dim, tree.levels(), tree.branching(), num_images, {}, {}};
+  shape.nodes_per_depth = tree.NodesPerLevel();
+  return shape;
 }
 
 int64_t NetworkShape::FirstNodeOfDepth(int depth) const {
