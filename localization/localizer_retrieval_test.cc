@@ -50,6 +50,25 @@ bool WithinQuarterMetreAndTwoDegrees(const NamedPose& truth, const PoseResult& r
   return errors.size() == 1 && errors[0].position < 0.25 && errors[0].rotation_deg < 2;
 }
 
+// The first `count` queries of `set` that the misleading descriptor does mislead: the global
+// ranking's images alone, with every sample of RANSAC's budget, give none of them a pose of
+// vote_retrieval_below_inliers, so that the default localizer's first round is weak. An image
+// near the far side of the city can still see a query's building: on one network, the farthest
+// image's neighbours placed the small city's day_00003 from 50 m away with 44 inliers.
+std::vector<size_t> MisledQueries(const Localizer& localizer, const QuerySet& set, size_t count) {
+  LocalizerOptions global_only;
+  global_only.retrieval = RetrievalMode::kGlobal;
+  global_only.nearest_point_candidates = 0;
+  std::vector<size_t> misled;
+  for (size_t q = 0; q < set.queries.size() && misled.size() < count; ++q) {
+    const PoseResult astray = localizer.Localize(Misled(localizer.map(), set, q), global_only);
+    if (!astray.success || astray.num_inliers < global_only.vote_retrieval_below_inliers) {
+      misled.push_back(q);
+    }
+  }
+  return misled;
+}
+
 TEST_F(SmallCityLocalizerTest, PointVotesRecoverQueriesThatRetrievalSendsAstray) {
   const QuerySet& set = Set("day");
   LocalizerOptions global_only;
@@ -57,8 +76,10 @@ TEST_F(SmallCityLocalizerTest, PointVotesRecoverQueriesThatRetrievalSendsAstray)
   global_only.nearest_point_candidates = 0;
   int recovered = 0;
   int astray_within = 0;
-  const size_t count = std::min<size_t>(set.queries.size(), 8);
-  for (size_t q = 0; q < count; ++q) {
+  const std::vector<size_t> misled = MisledQueries(localizer(), set, 8);
+  ASSERT_GE(misled.size(), 6u) << "the misleading descriptor must mislead for the test to mean "
+                                  "anything";
+  for (const size_t q : misled) {
     SCOPED_TRACE(set.queries[q].name);
     const LocalizationQuery query = Misled(localizer().map(), set, q);
     const PoseResult astray = localizer().Localize(query, global_only);
@@ -88,9 +109,8 @@ TEST_F(SmallCityLocalizerTest, PointVotesRecoverQueriesThatRetrievalSendsAstray)
     recovered += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], result);
     astray_within += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], astray);
   }
-  EXPECT_EQ(astray_within, 0) << "the misleading descriptor must mislead for the test to mean "
-                                 "anything";
-  EXPECT_EQ(recovered, static_cast<int>(count));
+  EXPECT_EQ(astray_within, 0);
+  EXPECT_EQ(recovered, static_cast<int>(misled.size()));
 }
 
 // A first round of wrong candidates costs their first looks, not RANSAC's whole budget each: the
@@ -102,8 +122,9 @@ TEST_F(SmallCityLocalizerTest, WrongGlobalCandidatesDrawOnlyTheirFirstLooks) {
   const LocalizerOptions first_looks;
   ASSERT_GT(first_looks.first_look_samples, 0);
   ASSERT_LT(first_looks.first_look_samples, first_looks.pose.max_iterations);
-  const size_t count = std::min<size_t>(set.queries.size(), 4);
-  for (size_t q = 0; q < count; ++q) {
+  const std::vector<size_t> misled = MisledQueries(localizer(), set, 4);
+  ASSERT_EQ(misled.size(), 4u);
+  for (const size_t q : misled) {
     SCOPED_TRACE(set.queries[q].name);
     const LocalizationQuery query = Misled(localizer().map(), set, q);
     const PoseResult whole = localizer().Localize(query, all_at_once);
@@ -139,8 +160,9 @@ TEST_F(SmallCityLocalizerTest, LaterRoundsSampledByConfidenceDrawOnlyTheirFirstL
   LocalizerOptions uniform;
   uniform.sample_by_confidence = false;
   int uniform_completed = 0;
-  const size_t count = std::min<size_t>(set.queries.size(), 4);
-  for (size_t q = 0; q < count; ++q) {
+  const std::vector<size_t> misled = MisledQueries(localizer(), set, 4);
+  ASSERT_EQ(misled.size(), 4u);
+  for (const size_t q : misled) {
     SCOPED_TRACE(set.queries[q].name);
     const LocalizationQuery query = Misled(localizer().map(), set, q);
     const PoseResult ranked = localizer().Localize(query, by_confidence);
