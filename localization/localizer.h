@@ -164,8 +164,9 @@ struct LocalizerOptions {
   // Inliers with which kUntilAccepted accepts a candidate and stops.
   int accept_candidate_inliers = 100;
   // RANSAC samples a candidate first draws (of pose.max_iterations); a candidate that used them
-  // all draws the rest only after every retrieval round, and only for as long as it could still
-  // beat the best pose by then (AbsolutePoseOptions::inliers_to_beat). A query whose global
+  // all draws the rest only after every retrieval round (where no round gives a pose, after the
+  // last round's first looks), and only for as long as it could still beat the best pose by then
+  // (AbsolutePoseOptions::inliers_to_beat). A query whose global
   // candidates are all wrong then reaches the votes' round without sampling each of them to the
   // full budget. 0: the full budget at once.
   int first_look_samples = 500;
@@ -300,6 +301,9 @@ class Localizer {
                                  const Eigen::VectorXf& global_descriptor, int first_rank,
                                  int end_rank, Evaluation& evaluation) const;
   bool UsesNearestPoints(const LocalizerOptions& options) const;
+  // Whether the last round runs: it is used and no candidate so far has a pose.
+  bool LastRoundFollows(const LocalizerOptions& options, const Eigen::VectorXf& global_descriptor,
+                        const Evaluation& evaluation) const;
   // The top_k of the global ranking's images [first_rank, end_rank) with the most nearest-point
   // matches, and at least pose.min_inliers of them.
   std::vector<LocalizationCandidate> RetrieveByNearestPoints(

@@ -120,11 +120,18 @@ std::vector<LocalizationCandidate> Localizer::RetrieveByNearestPoints(
   return candidates;
 }
 
+bool Localizer::LastRoundFollows(const LocalizerOptions& options,
+                                 const Eigen::VectorXf& global_descriptor,
+                                 const Evaluation& evaluation) const {
+  return UsesNearestPoints(options) && global_descriptor.size() > 0 &&
+         Choose(evaluation.result.candidates) < 0;
+}
+
 void Localizer::EvaluateNearestPointRound(const LocalizationQuery& query,
                                           const LocalizerOptions& options,
                                           const Eigen::VectorXf& global_descriptor,
                                           Evaluation& evaluation) const {
-  if (!UsesNearestPoints(options) || global_descriptor.size() == 0) return;
+  if (!LastRoundFollows(options, global_descriptor, evaluation)) return;
   // The global ranking's first images, then, where they give no pose either, the next ones.
   int first_rank = 0;
   for (const int end_rank :
@@ -147,8 +154,9 @@ void Localizer::EvaluateNearestPointRanks(const LocalizationQuery& query,
         RetrieveByNearestPoints(query, options, global_descriptor, first_rank, end_rank);
     result.candidates.insert(result.candidates.end(), ranked.begin(), ranked.end());
   }
-  if (result.candidates.size() == first) return;
-  EvaluateRound(query, options, first, evaluation);
+  if (result.candidates.size() > first) EvaluateRound(query, options, first, evaluation);
+  // Every candidate's rest of the budget, the earlier rounds' too (Localize), bounded by the
+  // round's pose where it found one.
   ScopedTimer timer(&result.timings.pose_ms);
   if (CompleteFirstLooks(query, options, evaluation)) {
     ScopedTimer refine_timer(&result.timings.refine_ms);

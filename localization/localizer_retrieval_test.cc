@@ -469,7 +469,10 @@ Localizer WithUntrainedNetwork(const std::shared_ptr<const LocalizationMap>& map
 
 // Where the network places nothing (here an untrained one, whose labels are random), the last
 // round matches the global ranking's images against the mean descriptors of the points they see,
-// and poses the top_k with the most matches.
+// and poses the top_k with the most matches. The earlier candidates draw the rest of RANSAC's
+// budget after the last round's first looks, and only as far as they could still beat its pose:
+// each draws at most what it draws before a last round (as a localizer without one does), and in
+// all fewer.
 TEST_F(SmallCityLocalizerTest, PointDescriptorsPlaceQueriesTheNetworkCannot) {
   const auto map = LocalizationMap::Load(localizer().map().dir());
   ASSERT_FALSE(map->point_descriptors().empty()) << "the map builder writes them";
@@ -481,6 +484,8 @@ TEST_F(SmallCityLocalizerTest, PointDescriptorsPlaceQueriesTheNetworkCannot) {
   const QuerySet& set = Set("day");
   const size_t count = std::min<size_t>(set.queries.size(), 6);
   int placed = 0;
+  int64_t earlier_samples_without = 0;
+  int64_t earlier_samples_with = 0;
   for (size_t q = 0; q < count; ++q) {
     SCOPED_TRACE(set.queries[q].name);
     const PoseResult network_alone = localizer.Localize(set.queries[q], without);
@@ -497,6 +502,9 @@ TEST_F(SmallCityLocalizerTest, PointDescriptorsPlaceQueriesTheNetworkCannot) {
       EXPECT_EQ(candidate.source == CandidateSource::kNearestPoints, k >= earlier) << k;
       if (k < earlier) {
         EXPECT_EQ(candidate.image_index, network_alone.candidates[k].image_index) << k;
+        EXPECT_LE(candidate.ransac_samples, network_alone.candidates[k].ransac_samples) << k;
+        earlier_samples_without += network_alone.candidates[k].ransac_samples;
+        earlier_samples_with += candidate.ransac_samples;
         continue;
       }
       // Ranked by their matches, and only those with enough of them to be posed.
@@ -511,6 +519,11 @@ TEST_F(SmallCityLocalizerTest, PointDescriptorsPlaceQueriesTheNetworkCannot) {
     placed += WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], result);
   }
   EXPECT_GE(placed, static_cast<int>(count) - 1);
+  std::cout << "the earlier rounds' candidates drew " << earlier_samples_without
+            << " RANSAC samples without the last round and " << earlier_samples_with
+            << " with it\n";
+  EXPECT_LT(earlier_samples_with, earlier_samples_without)
+      << "the earlier candidates drew their whole budgets before the last round's pose";
 }
 
 // The last round's shortlist (the images with the most matches of a sample of the keypoints) holds
