@@ -46,6 +46,14 @@ inline QuerySet ReadQuerySet(const std::filesystem::path& list, const FeatureRea
   return set;
 }
 
+// Whether the result is a pose within (0.25 m, 2 deg) of the truth, Aachen's finest bound.
+inline bool WithinQuarterMetreAndTwoDegrees(const NamedPose& truth, const PoseResult& result) {
+  if (!result.success) return false;
+  const std::vector<QueryPoseError> errors =
+      ComputePoseErrors({truth}, {{truth.name, result.cam_from_world}});
+  return errors.size() == 1 && errors[0].position < 0.25 && errors[0].rotation_deg < 2;
+}
+
 struct RunSummary {
   ConditionAccuracy accuracy;
   std::vector<PoseResult> results;
