@@ -166,9 +166,9 @@ struct LocalizerOptions {
   // RANSAC samples a candidate first draws (of pose.max_iterations); a candidate that used them
   // all draws the rest only after every retrieval round (where no round gives a pose, after the
   // last round's first looks), and only for as long as it could still beat the best pose by then
-  // (AbsolutePoseOptions::inliers_to_beat). A query whose global
-  // candidates are all wrong then reaches the votes' round without sampling each of them to the
-  // full budget. 0: the full budget at once.
+  // (AbsolutePoseOptions::inliers_to_beat). A query whose global candidates are all wrong then
+  // reaches the votes' round without sampling each of them to the full budget. 0: the full budget
+  // at once.
   int first_look_samples = 500;
   // RANSAC samples the network's most confident matches first (PROSAC, AbsolutePoseOptions::
   // progressive_sampling); nearest neighbour, which has no confidences, samples uniformly. The
