@@ -4,6 +4,11 @@
 #include <immintrin.h>
 #endif
 
+// AVX-512 VNNI with its 256-bit forms (AVX-512VL): vpdpbusd, and 32 vector registers.
+#if defined(__AVX512VNNI__) && defined(__AVX512VL__)
+#define HSCLOC_CODE_KERNELS_AVX512_VNNI 1
+#endif
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -21,7 +26,7 @@ constexpr int64_t kPanelStepBytes = kGroup * kDimensionsPerStep;
 // spilling some of them to the stack, and ran at two thirds the rate. AVX-512's 32 registers hold
 // six rows' twelve, which keep VNNI's one instruction per step busier through its latency (a
 // tenth faster than three rows).
-#if defined(__AVX512VL__) && defined(__AVX512VNNI__)
+#ifdef HSCLOC_CODE_KERNELS_AVX512_VNNI
 constexpr int kTileRows = 6;
 #else
 constexpr int kTileRows = 3;
@@ -59,7 +64,7 @@ int32_t CodeWord(const int8_t* row, int64_t first, int64_t dimension) {
 // give the same exact sums, then vpmaddwd and an add.
 inline __m256i AddFourProducts(const __m256i& sums, const __m256i& query_codes,
                                const __m256i& row_codes) {
-#if defined(__AVX512VNNI__) && defined(__AVX512VL__)
+#ifdef HSCLOC_CODE_KERNELS_AVX512_VNNI
   return _mm256_dpbusd_epi32(sums, query_codes, row_codes);
 #elif defined(__AVXVNNI__)
   return _mm256_dpbusd_avx_epi32(sums, query_codes, row_codes);
