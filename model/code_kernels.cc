@@ -4,8 +4,8 @@
 #include <immintrin.h>
 #endif
 
-// AVX-512 VNNI with its 256-bit forms (AVX-512VL): vpdpbusd, and 32 vector registers.
-#if defined(__AVX512VNNI__) && defined(__AVX512VL__)
+// AVX-512 VNNI: vpdpbusd on 512-bit registers, and 32 of them.
+#if defined(__AVX512VNNI__) && defined(__AVX512F__)
 #define HSCLOC_CODE_KERNELS_AVX512_VNNI 1
 #endif
 
@@ -18,8 +18,14 @@
 namespace hscloc::code_kernels {
 namespace {
 
-// Queries side by side in a panel: one 32-byte register holds four dimensions of each.
+// Queries side by side in a panel: one vector register holds four dimensions of each. AVX-512's
+// registers hold sixteen, and vpdpbusd multiplies twice as many codes per instruction at the rate
+// of its 256-bit form (one per cycle on the Xeons measured, docs/decisions.md).
+#ifdef HSCLOC_CODE_KERNELS_AVX512_VNNI
+constexpr int64_t kGroup = 16;
+#else
 constexpr int64_t kGroup = 8;
+#endif
 constexpr int64_t kDimensionsPerStep = 4;
 constexpr int64_t kPanelStepBytes = kGroup * kDimensionsPerStep;
 // Rows by two panels. With AVX2's 16 registers, three rows (six accumulators): four left GCC
@@ -58,14 +64,29 @@ int32_t CodeWord(const int8_t* row, int64_t first, int64_t dimension) {
 
 #ifdef __AVX2__
 
+// A panel's step of query codes, or a row's four codes broadcast, or a panel's 32-bit sums.
+#ifdef HSCLOC_CODE_KERNELS_AVX512_VNNI
+using CodeVector = __m512i;
+inline CodeVector ZeroSums() { return _mm512_setzero_si512(); }
+inline CodeVector LoadPanelStep(const uint8_t* step) { return _mm512_loadu_si512(step); }
+inline CodeVector BroadcastWord(int32_t word) { return _mm512_set1_epi32(word); }
+#else
+using CodeVector = __m256i;
+inline CodeVector ZeroSums() { return _mm256_setzero_si256(); }
+inline CodeVector LoadPanelStep(const uint8_t* step) {
+  return _mm256_loadu_si256(reinterpret_cast<const __m256i*>(step));
+}
+inline CodeVector BroadcastWord(int32_t word) { return _mm256_set1_epi32(word); }
+#endif
+
 // Each query's sum of four products (its offset codes, unsigned, by a row's four codes, signed)
 // added to its 32-bit lane. VNNI does it in one instruction, vpdpbusd; plain AVX2 takes three:
 // vpmaddubsw, whose 16-bit pair sums the query codes' 7 bits keep from saturating, so that both
 // give the same exact sums, then vpmaddwd and an add.
-inline __m256i AddFourProducts(const __m256i& sums, const __m256i& query_codes,
-                               const __m256i& row_codes) {
+inline CodeVector AddFourProducts(const CodeVector& sums, const CodeVector& query_codes,
+                                  const CodeVector& row_codes) {
 #ifdef HSCLOC_CODE_KERNELS_AVX512_VNNI
-  return _mm256_dpbusd_epi32(sums, query_codes, row_codes);
+  return _mm512_dpbusd_epi32(sums, query_codes, row_codes);
 #elif defined(__AVXVNNI__)
   return _mm256_dpbusd_avx_epi32(sums, query_codes, row_codes);
 #else
@@ -74,13 +95,28 @@ inline __m256i AddFourProducts(const __m256i& sums, const __m256i& query_codes,
 #endif
 }
 
+// A panel's cosines with one row: (sums - row_offset) x row_inverse_norm x each query's inverse
+// norm, in that order on every path.
+inline void StoreSimilarities(const CodeVector& sums, int32_t row_offset, float row_inverse_norm,
+                              const float* query_inverse_norms, float* out) {
+#ifdef HSCLOC_CODE_KERNELS_AVX512_VNNI
+  const __m512 dot = _mm512_cvtepi32_ps(_mm512_sub_epi32(sums, _mm512_set1_epi32(row_offset)));
+  _mm512_storeu_ps(out, _mm512_mul_ps(_mm512_mul_ps(dot, _mm512_set1_ps(row_inverse_norm)),
+                                      _mm512_loadu_ps(query_inverse_norms)));
+#else
+  const __m256 dot = _mm256_cvtepi32_ps(_mm256_sub_epi32(sums, _mm256_set1_epi32(row_offset)));
+  _mm256_storeu_ps(out, _mm256_mul_ps(_mm256_mul_ps(dot, _mm256_set1_ps(row_inverse_norm)),
+                                      _mm256_loadu_ps(query_inverse_norms)));
+#endif
+}
+
 // One step of a tile: four codes of each of kRows rows, broadcast to every query of a panel,
 // times the panel's offset query codes.
 template <int kRows, int kPanels>
-inline void CodeStep(const int32_t (&words)[kRows], const __m256i (&queries)[kPanels],
-                     __m256i (&sums)[kRows][kPanels]) {
+inline void CodeStep(const int32_t (&words)[kRows], const CodeVector (&queries)[kPanels],
+                     CodeVector (&sums)[kRows][kPanels]) {
   for (int r = 0; r < kRows; ++r) {
-    const __m256i row_codes = _mm256_set1_epi32(words[r]);
+    const CodeVector row_codes = BroadcastWord(words[r]);
     for (int p = 0; p < kPanels; ++p) {
       sums[r][p] = AddFourProducts(sums[r][p], queries[p], row_codes);
     }
@@ -91,19 +127,18 @@ inline void CodeStep(const int32_t (&words)[kRows], const __m256i (&queries)[kPa
 // with panel p's offset query codes.
 template <int kRows, int kPanels>
 void CodeTile(const int8_t* codes, int64_t dimension, const uint8_t* panels, int64_t panel_bytes,
-              __m256i (&sums)[kRows][kPanels]) {
+              CodeVector (&sums)[kRows][kPanels]) {
   for (int r = 0; r < kRows; ++r) {
-    for (int p = 0; p < kPanels; ++p) sums[r][p] = _mm256_setzero_si256();
+    for (int p = 0; p < kPanels; ++p) sums[r][p] = ZeroSums();
   }
-  const auto load_queries = [&](int64_t step, __m256i(&queries)[kPanels]) {
+  const auto load_queries = [&](int64_t step, CodeVector(&queries)[kPanels]) {
     for (int p = 0; p < kPanels; ++p) {
-      queries[p] = _mm256_loadu_si256(
-          reinterpret_cast<const __m256i*>(panels + p * panel_bytes + step * kPanelStepBytes));
+      queries[p] = LoadPanelStep(panels + p * panel_bytes + step * kPanelStepBytes);
     }
   };
   const int64_t whole_steps = dimension / kDimensionsPerStep;
   for (int64_t step = 0; step < whole_steps; ++step) {
-    __m256i queries[kPanels];
+    CodeVector queries[kPanels];
     load_queries(step, queries);
     int32_t words[kRows];
     for (int r = 0; r < kRows; ++r) {
@@ -112,7 +147,7 @@ void CodeTile(const int8_t* codes, int64_t dimension, const uint8_t* panels, int
     CodeStep<kRows, kPanels>(words, queries, sums);
   }
   if (whole_steps < Steps(dimension)) {
-    __m256i queries[kPanels];
+    CodeVector queries[kPanels];
     load_queries(whole_steps, queries);
     int32_t words[kRows];
     for (int r = 0; r < kRows; ++r) {
@@ -126,19 +161,16 @@ template <int kRows, int kPanels>
 void SimilarityTile(const int8_t* codes, const int32_t* row_offsets, const float* row_inverse_norms,
                     const PackedQueryCodes& queries, int64_t first_query, float* out) {
   const int64_t panel_bytes = Steps(queries.dimension) * kPanelStepBytes;
-  __m256i sums[kRows][kPanels];
+  CodeVector sums[kRows][kPanels];
   CodeTile<kRows, kPanels>(codes, queries.dimension,
                            queries.panels.data() + first_query / kGroup * panel_bytes, panel_bytes,
                            sums);
   for (int p = 0; p < kPanels; ++p) {
     const int64_t query = first_query + p * kGroup;
-    const __m256 query_inverse_norms = _mm256_loadu_ps(queries.inverse_norms.data() + query);
     for (int r = 0; r < kRows; ++r) {
-      const __m256 dot =
-          _mm256_cvtepi32_ps(_mm256_sub_epi32(sums[r][p], _mm256_set1_epi32(row_offsets[r])));
-      _mm256_storeu_ps(out + r * queries.padded_count + query,
-                       _mm256_mul_ps(_mm256_mul_ps(dot, _mm256_set1_ps(row_inverse_norms[r])),
-                                     query_inverse_norms));
+      StoreSimilarities(sums[r][p], row_offsets[r], row_inverse_norms[r],
+                        queries.inverse_norms.data() + query,
+                        out + r * queries.padded_count + query);
     }
   }
 }

@@ -1,9 +1,9 @@
 // Cosine similarities between 8-bit descriptor codes, for nearest-neighbour matching over many
 // stored rows (localization/nearest_neighbor_matcher.h): map points keep their mean descriptors at
 // 8 bits (map/point_descriptors.h), and matching a query against them in integers reads a quarter
-// of the bytes of their float rows and multiplies 32 values per instruction (VNNI's vpdpbusd) or
-// instruction pair (AVX2's vpmaddubsw then vpmaddwd) where a float product multiplies 8 per fused
-// multiply-add.
+// of the bytes of their float rows and multiplies 32 values per instruction (VNNI's vpdpbusd; 64
+// in AVX-512's registers) or instruction pair (AVX2's vpmaddubsw then vpmaddwd) where a float
+// product multiplies 8 per fused multiply-add.
 //
 // Compiled for the build machine's instruction set, as model/dense_kernels.h is and for the same
 // reason; without AVX2 a portable loop gives the same results. The integer dot products are exact,
