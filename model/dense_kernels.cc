@@ -413,7 +413,14 @@ void UpdateBestTwo(const float* values, int64_t count, int32_t index, float* bes
 }
 
 int64_t FirstArgMax(const float* values, int64_t count) {
-  return std::find(values, values + count, MaxOf(values, count)) - values;
+  const float largest = MaxOf(values, count);
+  // A packet at a time to the first that holds it, then a lane at a time within it.
+  const Packet largest_packet = ei::pset1<Packet>(largest);
+  int64_t i = 0;
+  for (; i + kLanes <= count; i += kLanes) {
+    if (ei::predux_any(ei::pcmp_eq(ei::ploadu<Packet>(values + i), largest_packet))) break;
+  }
+  return std::find(values + i, values + count, largest) - values;
 }
 
 void SoftmaxNormalizers(const float* logits, int64_t rows, int64_t columns,

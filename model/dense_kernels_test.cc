@@ -203,6 +203,17 @@ TEST(DenseKernelsTest, FirstArgMaxFindsTheFirstOfEqualLargest) {
   values[9] = 2.0f;
   EXPECT_EQ(dense_kernels::FirstArgMax(values.data(), 37), 9);
   EXPECT_EQ(dense_kernels::FirstArgMax(values.data(), 5), 0);
+  // Few distinct values, so that ties fall within packets, across them and in the tail.
+  Random random(3);
+  for (int64_t count = 1; count <= 70; ++count) {
+    for (int trial = 0; trial < 20; ++trial) {
+      std::vector<float> ties(count);
+      for (float& value : ties) value = static_cast<float>(random.UniformInt(4));
+      EXPECT_EQ(dense_kernels::FirstArgMax(ties.data(), count),
+                std::max_element(ties.begin(), ties.end()) - ties.begin())
+          << count << ", trial " << trial;
+    }
+  }
 }
 
 // Softmax of logits far below the largest: exp(x - max) can underflow, and no value leaves [0, 1]
