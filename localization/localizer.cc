@@ -454,7 +454,8 @@ void Localizer::EvaluateFurtherRounds(const LocalizationQuery& query,
     EvaluateRound(query, options, first_voted, evaluation);
   }
   if (options.retrieval == RetrievalMode::kGlobalThenVotes &&
-      options.deeper_global_candidates > 0 && weak()) {
+      options.deeper_global_candidates > 0 && weak() &&
+      !LastRoundHoldsDeeperRound(options, global_descriptor, evaluation)) {
     const size_t first_deeper = result.candidates.size();
     {
       ScopedTimer timer(&result.timings.retrieval_ms);

@@ -116,7 +116,8 @@ struct LocalizerOptions {
   // kGlobalThenVotes: where the best candidate is still that weak after the votes' round (or,
   // without a network, after the first), the global ranking's next candidates not yet tried,
   // this many, are one more round: a night query's right image often ranks just past the first
-  // top_k (hloc retrieves 50 for Aachen's night). 0: none.
+  // top_k (hloc retrieves 50 for Aachen's night). Not where no round has a pose yet and the last
+  // round follows (nearest_point_candidates), which ranks these images too. 0: none.
   int deeper_global_candidates = 20;
   // The network's last resort: where every round leaves the query without a pose, the global
   // ranking's first this many images are matched by mutual nearest neighbours with the ratio test
@@ -304,6 +305,11 @@ class Localizer {
   // Whether the last round runs: it is used and no candidate so far has a pose.
   bool LastRoundFollows(const LocalizerOptions& options, const Eigen::VectorXf& global_descriptor,
                         const Evaluation& evaluation) const;
+  // Whether the last round follows and ranks every image the deeper global round would pose, so
+  // that the deeper round is left to it.
+  bool LastRoundHoldsDeeperRound(const LocalizerOptions& options,
+                                 const Eigen::VectorXf& global_descriptor,
+                                 const Evaluation& evaluation) const;
   // The top_k of the global ranking's images [first_rank, end_rank) with the most nearest-point
   // matches, and at least pose.min_inliers of them.
   std::vector<LocalizationCandidate> RetrieveByNearestPoints(

@@ -27,18 +27,22 @@ Localizer WithUntrainedNetwork(const std::shared_ptr<const LocalizationMap>& map
 
 // Where the network places nothing (here an untrained one, whose labels are random), the last
 // round matches the global ranking's images against the mean descriptors of the points they see,
-// and poses the top_k with the most matches. The earlier candidates draw the rest of RANSAC's
-// budget after the last round's first looks, and only as far as they could still beat its pose:
-// each draws at most what it draws before a last round (as a localizer without one does), and in
-// all fewer.
+// and poses the top_k with the most matches. The deeper global round does not run before it: the
+// last round ranks those images too. The earlier candidates draw the rest of RANSAC's budget after
+// the last round's first looks, and only as far as they could still beat its pose: each draws at
+// most what it draws before a last round (as a localizer without one does), and in all fewer.
 TEST_F(SmallCityLocalizerTest, PointDescriptorsPlaceQueriesTheNetworkCannot) {
   const auto map = LocalizationMap::Load(localizer().map().dir());
   ASSERT_FALSE(map->point_descriptors().empty()) << "the map builder writes them";
   ASSERT_EQ(map->point_descriptors().NumPoints(), map->scene().NumPoints());
   const Localizer localizer = WithUntrainedNetwork(map);
   const LocalizerOptions options;
-  LocalizerOptions without = options;
-  without.nearest_point_candidates = 0;
+  ASSERT_GT(options.deeper_global_candidates, 0);
+  LocalizerOptions deeper_without = options;
+  deeper_without.nearest_point_candidates = 0;
+  // The rounds that run before the last one.
+  LocalizerOptions without = deeper_without;
+  without.deeper_global_candidates = 0;
   const QuerySet& set = Set("day");
   const size_t count = std::min<size_t>(set.queries.size(), 6);
   int placed = 0;
@@ -50,6 +54,9 @@ TEST_F(SmallCityLocalizerTest, PointDescriptorsPlaceQueriesTheNetworkCannot) {
     EXPECT_FALSE(WithinQuarterMetreAndTwoDegrees(set.ground_truth[q], network_alone))
         << "an untrained network must not place the query for the test to mean anything";
     if (network_alone.success) continue;  // the last round runs only without any pose
+    EXPECT_GT(localizer.Localize(set.queries[q], deeper_without).candidates.size(),
+              network_alone.candidates.size())
+        << "without a last round, the deeper global round poses more images";
     const PoseResult result = localizer.Localize(set.queries[q], options);
     const size_t earlier = network_alone.candidates.size();
     ASSERT_GT(result.candidates.size(), earlier);

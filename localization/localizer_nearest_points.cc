@@ -137,6 +137,15 @@ bool Localizer::LastRoundFollows(const LocalizerOptions& options,
          Choose(evaluation.result.candidates) < 0;
 }
 
+bool Localizer::LastRoundHoldsDeeperRound(const LocalizerOptions& options,
+                                          const Eigen::VectorXf& global_descriptor,
+                                          const Evaluation& evaluation) const {
+  // The deeper round's images follow the first round's and the votes' in the global ranking.
+  const int deepest_rank = 2 * options.top_k + options.deeper_global_candidates;
+  return LastRoundFollows(options, global_descriptor, evaluation) &&
+         options.nearest_point_candidates >= deepest_rank;
+}
+
 void Localizer::EvaluateNearestPointRound(const LocalizationQuery& query,
                                           const LocalizerOptions& options,
                                           const Eigen::VectorXf& global_descriptor,

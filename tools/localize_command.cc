@@ -166,7 +166,8 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
   command
       ->add_option("--deeper-global-candidates", options.deeper_global_candidates,
                    "global-then-votes: the global ranking's next images, not yet tried, posed "
-                   "where the votes' round is weak too (0: none)")
+                   "where the votes' round is weak too, unless no round has a pose and the last "
+                   "round ranks them (0: none)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   AddLastRoundOptions(*command, options);
