@@ -134,9 +134,10 @@ struct LocalizerOptions {
   int nearest_point_shortlist = 40;
   // Where the last round's nearest_point_candidates images give no pose either, it ranks the
   // global ranking's next images up to this one the same way, once: at night the right image of
-  // an aachen query can rank past the 600th (docs/decisions.md), and a query no earlier pass
-  // placed is the rare one. 0, or no more than nearest_point_candidates: no second pass.
-  int nearest_point_widened_candidates = 1000;
+  // an aachen query can rank past the 2,000th (docs/decisions.md), this many is every image of an
+  // aachen-sized map (4,356), and a query no earlier pass placed is the rare one. 0, or no more
+  // than nearest_point_candidates: no second pass.
+  int nearest_point_widened_candidates = 5000;
   // Keypoints past this many are not matched: the network and every later stage see this many of
   // the query's, evenly spaced in its order (a detector's order by score is sampled across its
   // scores), while retrieval's global descriptor still pools them all. The network's work grows
