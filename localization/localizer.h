@@ -101,6 +101,10 @@ enum class Matcher {
 Matcher ParseMatcher(const std::string& name);
 std::string MatcherName(Matcher matcher);
 
+// Each of the last round's passes after the first ranks the global ranking's images up to this
+// many times as deep as the pass before it (LocalizerOptions::nearest_point_widened_candidates).
+inline constexpr int kNearestPointWideningFactor = 5;
+
 // The keypoints the last round's shortlist counts its images on
 // (LocalizerOptions::nearest_point_shortlist): about a quarter of an aachen night query's.
 inline constexpr int64_t kNearestPointSampleKeypoints = 128;
@@ -133,10 +137,11 @@ struct LocalizerOptions {
   // on every keypoint.
   int nearest_point_shortlist = 40;
   // Where the last round's nearest_point_candidates images give no pose either, it ranks the
-  // global ranking's next images up to this one the same way, once: at night the right image of
-  // an aachen query can rank past the 2,000th (docs/decisions.md), this many is every image of an
-  // aachen-sized map (4,356), and a query no earlier pass placed is the rare one. 0, or no more
-  // than nearest_point_candidates: no second pass.
+  // global ranking's next images the same way, up to kNearestPointWideningFactor times as deep
+  // per pass (200, 1,000, 5,000 by default), until a pass gives a pose or reaches this one: at
+  // night the right image of an aachen query can rank past the 2,000th (docs/decisions.md), this
+  // many is every image of an aachen-sized map (4,356), and a query no earlier pass placed is the
+  // rare one. 0, or no more than nearest_point_candidates: no further pass.
   int nearest_point_widened_candidates = 5000;
   // Keypoints past this many are not matched: the network and every later stage see this many of
   // the query's, evenly spaced in its order (a detector's order by score is sampled across its

@@ -152,12 +152,15 @@ void Localizer::EvaluateNearestPointRound(const LocalizationQuery& query,
                                           Evaluation& evaluation) const {
   if (!LastRoundFollows(options, global_descriptor, evaluation)) return;
   // The global ranking's first images, then, where they give no pose either, the next ones.
+  const int num_images = static_cast<int>(map_->scene().NumImages());
   int first_rank = 0;
-  for (const int end_rank :
-       {options.nearest_point_candidates, options.nearest_point_widened_candidates}) {
-    if (Choose(evaluation.result.candidates) >= 0 || end_rank <= first_rank) return;
+  int end_rank = options.nearest_point_candidates;
+  while (Choose(evaluation.result.candidates) < 0 && first_rank < end_rank &&
+         first_rank < num_images) {
     EvaluateNearestPointRanks(query, options, global_descriptor, first_rank, end_rank, evaluation);
     first_rank = end_rank;
+    end_rank =
+        std::min(options.nearest_point_widened_candidates, end_rank * kNearestPointWideningFactor);
   }
 }
 

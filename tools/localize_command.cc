@@ -105,7 +105,8 @@ void AddLastRoundOptions(CLI::App& command, LocalizerOptions& options) {
        "(needs a map built with point descriptors; 0: never)"},
       {"--nearest-point-widened-candidates", &options.nearest_point_widened_candidates,
        "hsc: where the last round's images give no pose either, the global ranking's next images "
-       "up to this one are ranked and posed the same way (0: no second pass)"},
+       "are ranked and posed the same way, each pass up to five times as deep as the last, up to "
+       "this one (0: no second pass)"},
       {"--nearest-point-shortlist", &options.nearest_point_shortlist,
        "hsc: the last round counts its images' matches on a sample of the query's keypoints, then "
        "on all of them for this many with the most (0: every image on every keypoint)"},
