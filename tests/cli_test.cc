@@ -5,6 +5,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -271,6 +272,48 @@ TEST_F(CliTest, InterruptedTrainingKeepsTheNetworkSoFar) {
   EXPECT_TRUE(fs::exists(Temp("train.ckpt")));
   const MapBundle bundle = MapBundle::Open(map);
   EXPECT_EQ(bundle.metadata()["network"]["training"]["iterations"], iterations);
+}
+
+// `--matcher auto` is the default and may also be named: localize and serve accept it, and the
+// named and the implied default give the same submission; an unknown matcher is refused by name.
+TEST_F(CliTest, MatcherAutoMayBeNamed) {
+  const std::string implied = Temp("implied.txt");
+  const std::string named = Temp("named.txt");
+  ASSERT_EQ(RunHscloc(fmt::format("localize --map {} --queries {} --features {} --out {}", Map(),
+                                  NightList(), Features(), implied),
+                      temp_ / "implied.log"),
+            0)
+      << ReadText(temp_ / "implied.log");
+  ASSERT_EQ(RunHscloc(fmt::format("localize --map {} --queries {} --features {} --out {} "
+                                  "--matcher auto",
+                                  Map(), NightList(), Features(), named),
+                      temp_ / "named.log"),
+            0)
+      << ReadText(temp_ / "named.log");
+  EXPECT_THAT(ReadText(temp_ / "named.log"), HasSubstr("matcher auto: "));
+  // Queries run in parallel and are written as they finish: compare the lines, not their order.
+  const auto sorted_lines = [](const std::string& path) {
+    std::istringstream text(ReadText(path));
+    std::vector<std::string> lines;
+    for (std::string line; std::getline(text, line);) lines.push_back(line);
+    std::sort(lines.begin(), lines.end());
+    return lines;
+  };
+  EXPECT_EQ(sorted_lines(named), sorted_lines(implied));
+  EXPECT_EQ(sorted_lines(named).size(), ReadQueryList(NightList()).size());
+
+  EXPECT_NE(RunHscloc(fmt::format("localize --map {} --queries {} --features {} --out {} "
+                                  "--matcher nearest",
+                                  Map(), NightList(), Features(), Temp("unknown.txt")),
+                      temp_ / "unknown.log"),
+            0);
+  EXPECT_THAT(ReadText(temp_ / "unknown.log"), HasSubstr("--matcher: nearest not in"));
+
+  testing::HsclocProcess server({"serve", "--map", Map(), "--bind", "tcp://127.0.0.1:0",
+                                 "--admin-bind", "tcp://127.0.0.1:0", "--matcher", "auto"},
+                                temp_ / "serve.log");
+  EXPECT_FALSE(server.WaitForLine("listening on ").empty()) << server.Log();
+  EXPECT_THAT(server.Log(), HasSubstr("matcher auto: "));
 }
 
 TEST_F(CliTest, BadInputsFailWithAClearMessage) {

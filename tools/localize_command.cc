@@ -147,7 +147,7 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
       ->add_option("--matcher", arguments->matcher,
                    "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
                    "timed cheaper on this map; hsc where it timed none)")
-      ->check(CLI::IsMember({"hsc", "nn"}))
+      ->check(CLI::IsMember({"auto", "hsc", "nn"}))
       ->capture_default_str();
   command->add_option("--top-k", options.top_k, "Retrieved database images")->capture_default_str();
   command

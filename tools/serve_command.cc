@@ -211,7 +211,7 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
       ->add_option("--matcher", arguments->matcher,
                    "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
                    "timed cheaper on this map; hsc where it timed none)")
-      ->check(CLI::IsMember({"hsc", "nn"}))
+      ->check(CLI::IsMember({"auto", "hsc", "nn"}))
       ->capture_default_str();
   command->add_option("--top-k", options.localizer.top_k, "Retrieved images per query")
       ->capture_default_str();
