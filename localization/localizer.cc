@@ -469,6 +469,26 @@ void Localizer::EvaluateFurtherRounds(const LocalizationQuery& query,
   }
 }
 
+Eigen::VectorXf Localizer::RetrieveFirstRound(const LocalizationQuery& query,
+                                              const LocalizerOptions& options,
+                                              Evaluation& evaluation) const {
+  PoseResult& result = evaluation.result;
+  ScopedTimer timer(&result.timings.retrieval_ms);
+  if (options.retrieval == RetrievalMode::kVotes) {
+    ScopedTimer votes_timer(&result.timings.votes_ms);
+    result.candidates = RetrieveByVotes(query, options, {}, evaluation.network_cache);
+    return {};
+  }
+  Eigen::VectorXf global_descriptor;
+  if (query.global_descriptor.has_value()) {
+    global_descriptor = *query.global_descriptor;
+  } else if (query.descriptors.rows() > 0) {
+    global_descriptor = map_->vlad()->Encode(query.descriptors, ComputeThreads());
+  }
+  result.candidates = Retrieve(global_descriptor, options.top_k, {});
+  return global_descriptor;
+}
+
 PoseResult Localizer::Localize(const LocalizationQuery& query,
                                const LocalizerOptions& options) const {
   if (options.matcher == Matcher::kAuto) {
@@ -485,21 +505,7 @@ PoseResult Localizer::Localize(const LocalizationQuery& query,
   Evaluation evaluation;
   PoseResult& result = evaluation.result;
   const bool votes_only = options.retrieval == RetrievalMode::kVotes;
-  Eigen::VectorXf global_descriptor;
-  {
-    ScopedTimer timer(&result.timings.retrieval_ms);
-    if (votes_only) {
-      ScopedTimer votes_timer(&result.timings.votes_ms);
-      result.candidates = RetrieveByVotes(query, options, {}, evaluation.network_cache);
-    } else {
-      if (query.global_descriptor.has_value()) {
-        global_descriptor = *query.global_descriptor;
-      } else if (query.descriptors.rows() > 0) {
-        global_descriptor = map_->vlad()->Encode(query.descriptors, ComputeThreads());
-      }
-      result.candidates = Retrieve(global_descriptor, options.top_k, {});
-    }
-  }
+  const Eigen::VectorXf global_descriptor = RetrieveFirstRound(query, options, evaluation);
   // A query left without a pose answers with its first candidate's, retrieval's best guess.
   const auto fail = [&](const std::string& reason) {
     if (!result.candidates.empty()) {

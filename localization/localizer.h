@@ -289,6 +289,11 @@ class Localizer {
   std::vector<LocalizationCandidate> RetrieveByVotes(
       const LocalizationQuery& query, const LocalizerOptions& options,
       const std::vector<LocalizationCandidate>& tried, DescriptorLayerCache& network_cache) const;
+  // The first round's candidates into the evaluation, by the network's votes
+  // (RetrievalMode::kVotes) or by the global descriptor, encoded here where the query brings none;
+  // returns that descriptor (empty with the votes alone).
+  Eigen::VectorXf RetrieveFirstRound(const LocalizationQuery& query,
+                                     const LocalizerOptions& options, Evaluation& evaluation) const;
   // The rounds after the global descriptor's first (RetrievalMode::kGlobalThenVotes): the votes'
   // where the best candidate so far is below vote_retrieval_below_inliers, then the global
   // ranking's next deeper_global_candidates images where it still is.
