@@ -3,6 +3,7 @@
 
 #include <CLI/CLI.hpp>
 #include <functional>
+#include <string>
 
 namespace hscloc {
 
@@ -26,5 +27,7 @@ void AddDemoCommand(CLI::App& app, CommandRunner& run);
 
 // The options of the localizer's last round (nearest_point_*), for every command that localizes.
 void AddLastRoundOptions(CLI::App& command, LocalizerOptions& options);
+// --matcher (auto, hsc or nn), for every command that localizes with a trained map.
+void AddMatcherOption(CLI::App& command, std::string& matcher);
 
 }  // namespace hscloc

@@ -92,6 +92,15 @@ int RunLocalize(LocalizeArguments& arguments) {
 
 }  // namespace
 
+void AddMatcherOption(CLI::App& command, std::string& matcher) {
+  command
+      .add_option("--matcher", matcher,
+                  "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
+                  "timed cheaper on this map; hsc where it timed none)")
+      ->check(CLI::IsMember({"auto", "hsc", "nn"}))
+      ->capture_default_str();
+}
+
 void AddLastRoundOptions(CLI::App& command, LocalizerOptions& options) {
   struct CountOption {
     const char* name;
@@ -143,12 +152,7 @@ void AddLocalizeCommand(CLI::App& app, CommandRunner& run) {
   command->add_option(
       "--timings", arguments->run.timings_out,
       "CSV of every query's stage timings in milliseconds, rounds, inliers and RANSAC samples");
-  command
-      ->add_option("--matcher", arguments->matcher,
-                   "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
-                   "timed cheaper on this map; hsc where it timed none)")
-      ->check(CLI::IsMember({"auto", "hsc", "nn"}))
-      ->capture_default_str();
+  AddMatcherOption(*command, arguments->matcher);
   command->add_option("--top-k", options.top_k, "Retrieved database images")->capture_default_str();
   command
       ->add_option("--retrieval", arguments->retrieval,

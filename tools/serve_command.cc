@@ -207,12 +207,7 @@ void AddServeCommand(CLI::App& app, CommandRunner& run) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   AddLastRoundOptions(*command, options.localizer);
-  command
-      ->add_option("--matcher", arguments->matcher,
-                   "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
-                   "timed cheaper on this map; hsc where it timed none)")
-      ->check(CLI::IsMember({"auto", "hsc", "nn"}))
-      ->capture_default_str();
+  AddMatcherOption(*command, arguments->matcher);
   command->add_option("--top-k", options.localizer.top_k, "Retrieved images per query")
       ->capture_default_str();
   command
