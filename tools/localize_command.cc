@@ -97,7 +97,8 @@ void AddMatcherOption(CLI::App& command, std::string& matcher) {
       .add_option("--matcher", matcher,
                   "hsc (the network), nn (nearest neighbour) or auto (the one `hscloc train` "
                   "timed cheaper on this map; hsc where it timed none)")
-      ->check(CLI::IsMember({"auto", "hsc", "nn"}))
+      ->check(CLI::IsMember({MatcherName(Matcher::kAuto), MatcherName(Matcher::kNetwork),
+                             MatcherName(Matcher::kNearestNeighbor)}))
       ->capture_default_str();
 }
 
